@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Install ogiflow into ./.venv on Debian (bookworm or later) with Python >= 3.10.
+#   tools/install.sh          runtime only
+#   tools/install.sh --dev    runtime + test tools + the system packages the tests need
+# System packages come from apt (with sudo when not root); Python packages from PyPI.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+dev=0
+[ "${1:-}" = "--dev" ] && dev=1
+
+apt_packages=(python3-venv python3-dev)
+if [ "$dev" = 1 ]; then
+    # Tests: none yet beyond the runtime set (issue-specific packages are added here).
+    apt_packages+=()
+fi
+
+missing=()
+for p in "${apt_packages[@]}"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ "${#missing[@]}" -gt 0 ]; then
+    sudo=""
+    [ "$(id -u)" = 0 ] || sudo="sudo"
+    echo "install.sh: installing system packages: ${missing[*]}"
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq "${missing[@]}"
+fi
+
+[ -x .venv/bin/python ] || python3 -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip
+if [ "$dev" = 1 ]; then
+    .venv/bin/python -m pip install -q -e ".[dev]"
+else
+    .venv/bin/python -m pip install -q .
+fi
+echo "install.sh: ogiflow installed in .venv ($(.venv/bin/ogiflow --version))"
