@@ -1,0 +1,98 @@
+"""The compact red-black SOR solves the same system as a direct sparse solve."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from processing import redblack
+
+
+def _system(h: int, w: int, seed: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    f = lambda lo, hi: rng.uniform(lo, hi, (h, w)).astype(np.float32)  # noqa: E731
+    a11, a22 = f(0.0, 2.0), f(0.0, 2.0)
+    # |a12| <= sqrt(a11 a22) keeps every data block positive semi-definite.
+    a12 = (np.sqrt(a11 * a22) * f(-0.9, 0.9)).astype(np.float32)
+    wx1, wy1, wx2, wy2 = f(0.1, 1.0), f(0.1, 1.0), f(0.1, 1.0), f(0.1, 1.0)
+    for wx in (wx1, wx2):
+        wx[:, -1] = 0.0
+    for wy in (wy1, wy2):
+        wy[-1, :] = 0.0
+    return dict(
+        a11=a11, a12=a12, a22=a22, r1=f(-1, 1), r2=f(-1, 1), wx1=wx1, wy1=wy1, wx2=wx2, wy2=wy2
+    )
+
+
+def _direct(s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    h, w = s["a11"].shape
+    n = h * w
+    idx = np.arange(n).reshape(h, w)
+    rows, cols, vals = [], [], []
+
+    def add(i: np.ndarray, j: np.ndarray, v: np.ndarray) -> None:
+        rows.append(i.ravel())
+        cols.append(j.ravel())
+        vals.append(v.ravel().astype(np.float64))
+
+    for k, (wx, wy) in enumerate(((s["wx1"], s["wy1"]), (s["wx2"], s["wy2"]))):
+        off = k * n
+        # Graph Laplacian of the edge weights for unknown k.
+        for a, b, wgt in (
+            (idx[:, :-1], idx[:, 1:], wx[:, :-1]),
+            (idx[:-1, :], idx[1:, :], wy[:-1, :]),
+        ):
+            add(a + off, a + off, wgt)
+            add(b + off, b + off, wgt)
+            add(a + off, b + off, -wgt)
+            add(b + off, a + off, -wgt)
+    add(idx, idx, s["a11"])
+    add(idx + n, idx + n, s["a22"])
+    add(idx, idx + n, s["a12"])
+    add(idx + n, idx, s["a12"])
+    mat = sp.csr_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(2 * n, 2 * n)
+    )
+    x = spla.spsolve(mat.tocsc(), np.concatenate([s["r1"].ravel(), s["r2"].ravel()]))
+    return x[:n].reshape(h, w), x[n:].reshape(h, w)
+
+
+@pytest.mark.parametrize(("h", "w"), [(9, 12), (10, 11), (7, 7)])
+def test_sor_matches_direct_solve(h: int, w: int) -> None:
+    s = _system(h, w, seed=h * 100 + w)
+    red, black = redblack.empty_system(h, w)
+    redblack.pack_system(
+        s["a11"],
+        s["a12"],
+        s["a22"],
+        s["r1"],
+        s["r2"],
+        s["wx1"],
+        s["wy1"],
+        s["wx2"],
+        s["wy2"],
+        red,
+        black,
+    )
+    cshape = redblack.compact_shape(h, w)
+    x = [np.zeros(cshape, np.float32) for _ in range(4)]
+    redblack.solve_sor(red, black, *x, 2000, 1.5)
+    u = np.zeros((h, w), np.float32)
+    v = np.zeros((h, w), np.float32)
+    redblack.merge_field(x[0], x[1], u)
+    redblack.merge_field(x[2], x[3], v)
+    u_ref, v_ref = _direct(s)
+    np.testing.assert_allclose(u, u_ref, atol=2e-4)
+    np.testing.assert_allclose(v, v_ref, atol=2e-4)
+
+
+def test_split_merge_round_trip() -> None:
+    field = np.random.default_rng(0).random((7, 9)).astype(np.float32)
+    red = np.zeros(redblack.compact_shape(7, 9), np.float32)
+    black = np.zeros_like(red)
+    redblack.split_field(field, red, black)
+    out = np.zeros_like(field)
+    redblack.merge_field(red, black, out)
+    np.testing.assert_array_equal(out, field)
