@@ -31,7 +31,7 @@ MIN_IMAGE_SIZE = 8
 
 
 @numba.njit(cache=True, fastmath=True)
-def flow_data_terms(
+def _compact_data_terms(
     iz: np.ndarray,
     ix: np.ndarray,
     iy: np.ndarray,
@@ -47,13 +47,11 @@ def flow_data_terms(
     v0: np.ndarray,
     beta: float,
     eps: float,
+    coef: np.ndarray,
     a11: np.ndarray,
-    a12: np.ndarray,
     a22: np.ndarray,
-    r1: np.ndarray,
-    r2: np.ndarray,
 ) -> None:
-    """Linearised data terms of Eq. 5 with lagged psi' weights, per pixel.
+    """Linearised data terms of Eq. 5 with lagged psi' weights, one colour, compact layout.
 
     Linearising E2 around the warp (u0, v0) gives E2 ~ iz + ix du + iy dv and its
     gradient ~ (ixz + ixx du + ixy dv, iyz + ixy du + iyy dv), with (du, dv) = (u - u0,
@@ -62,31 +60,27 @@ def flow_data_terms(
 
     Parameters
     ----------
-    iz, ix, iy : ndarray, shape (H, W), float32
+    iz, ix, iy : ndarray, shape (H+2, W2+2), float32
         Temporal difference I1(x + w0) - I0 and the spatial derivatives.
-    ixz, iyz, ixx, ixy, iyy : ndarray, shape (H, W), float32
+    ixz, iyz, ixx, ixy, iyy : ndarray, shape (H+2, W2+2), float32
         Temporal differences of the gradient and the second derivatives.
-    valid : ndarray, shape (H, W), float32
+    valid : ndarray, shape (H+2, W2+2), float32
         1 where the warped sample fell inside the image, 0 elsewhere (no data term).
-    u, v : ndarray, shape (H, W), float32
-        Current flow (for the lagged weights).
-    u0, v0 : ndarray, shape (H, W), float32
-        Flow used for the warp.
+    u, v, u0, v0 : ndarray, shape (H+2, W2+2), float32
+        Current flow (for the lagged weights) and the flow used for the warp.
     beta, eps : float
         Gradient-constancy weight and Charbonnier epsilon.
-    a11, a12, a22, r1, r2 : ndarray, shape (H, W), float32
-        Outputs.
+    coef : ndarray, shape (13, H+2, W2+2), float32
+        Receives A12, R1, R2 (see :mod:`processing.redblack`).
+    a11, a22 : ndarray, shape (H+2, W2+2), float32
+        Receive the data diagonals; :func:`redblack.finish_diagonals` adds smoothness.
     """
-    h, w = iz.shape
-    # float32 constants: a float64 scalar would promote every pixel's arithmetic to
-    # float64 and halve the SIMD width.
+    rows, w = iz.shape
     e2 = np.float32(eps * eps)
     bt = np.float32(beta)
     pd = np.empty(w, np.float32)
     pg = np.empty(w, np.float32)
-    for y in range(h):
-        # Row views: one index in the inner loops, so they vectorise. Two passes (robust
-        # weights, then coefficients) keep few pointers per loop for LLVM's alias checks.
+    for y in range(rows):
         rz, rx, ry = iz[y], ix[y], iy[y]
         rxz, ryz = ixz[y], iyz[y]
         rxx, rxy, ryy = ixx[y], ixy[y], iyy[y]
@@ -100,16 +94,13 @@ def flow_data_terms(
             ey = ryz[x] + rxy[x] * du + ryy[x] * dv
             pd[x] = rv[x] / np.sqrt(e * e + e2)
             pg[x] = bt * rv[x] / np.sqrt(ex * ex + ey * ey + e2)
-        o11, o12, o22, o1, o2 = a11[y], a12[y], a22[y], r1[y], r2[y]
+        o11, o12, o22, o1, o2 = a11[y], coef[1, y], a22[y], coef[3, y], coef[4, y]
         for x in range(w):
             gx = rx[x]
             gy = ry[x]
             hxx = rxx[x]
             hxy = rxy[x]
             hyy = ryy[x]
-            z = rz[x]
-            xz = rxz[x]
-            yz = ryz[x]
             d = pd[x]
             g = pg[x]
             c11 = d * gx * gx + g * (hxx * hxx + hxy * hxy)
@@ -118,8 +109,18 @@ def flow_data_terms(
             o11[x] = c11
             o12[x] = c12
             o22[x] = c22
-            o1[x] = c11 * ru0[x] + c12 * rv0[x] - (d * gx * z + g * (hxx * xz + hxy * yz))
-            o2[x] = c12 * ru0[x] + c22 * rv0[x] - (d * gy * z + g * (hxy * xz + hyy * yz))
+            z = rz[x]
+            o1[x] = c11 * ru0[x] + c12 * rv0[x] - (d * gx * z + g * (hxx * rxz[x] + hxy * ryz[x]))
+            o2[x] = c12 * ru0[x] + c22 * rv0[x] - (d * gy * z + g * (hxy * rxz[x] + hyy * ryz[x]))
+
+
+@numba.njit(cache=True)
+def _split(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    h, w = field.shape
+    red = np.zeros(redblack.compact_shape(h, w), np.float32)
+    black = np.zeros_like(red)
+    redblack.split_field(field, red, black)
+    return red, black
 
 
 @numba.njit(cache=True)
@@ -142,40 +143,49 @@ def _lagged_iterations(
     n_sor: int,
     omega: float,
 ) -> None:
-    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (u, v) in place."""
+    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (u, v) in place.
+
+    Everything stays in compact red-black layout for the whole warp: inputs are split
+    once, psi', edge weights and data terms are computed per colour, and the unknowns
+    are merged back only at the end.
+    """
     h, w = u.shape
-    u0 = u.copy()
-    v0 = v.copy()
-    a11 = np.empty((h, w), np.float32)
-    a12 = np.empty((h, w), np.float32)
-    a22 = np.empty((h, w), np.float32)
-    r1 = np.empty((h, w), np.float32)
-    r2 = np.empty((h, w), np.float32)
-    s2 = np.empty((h, w), np.float32)
-    psi = np.empty((h, w), np.float32)
-    wx = np.empty((h, w), np.float32)
-    wy = np.empty((h, w), np.float32)
-    red, black = redblack.empty_system(h, w)
-    cshape = redblack.compact_shape(h, w)
-    ur = np.zeros(cshape, np.float32)
-    ub = np.zeros(cshape, np.float32)
-    vr = np.zeros(cshape, np.float32)
-    vb = np.zeros(cshape, np.float32)
+    inputs = [_split(a) for a in (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid)]
+    ur, ub = _split(u)
+    vr, vb = _split(v)
+    u0 = (ur.copy(), ub.copy())
+    v0 = (vr.copy(), vb.copy())
+    masks = redblack.border_masks(h, w)
+    coefs = redblack.empty_system(h, w)
+    cshape = ur.shape
+    a11 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    a22 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    s2 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    psi = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    us = (ur, ub)
+    vs = (vr, vb)
     for _ in range(n_inner):
-        flow_data_terms(iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid, u, v, u0, v0,
-                        beta, eps, a11, a12, a22, r1, r2)
-        # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
-        s2[:] = 0.0
-        redblack.gradient_sq(u, s2)
-        redblack.gradient_sq(v, s2)
-        redblack.charbonnier_prime(s2, eps, psi)
-        redblack.edge_weights(psi, alpha, wx, wy)
-        redblack.pack_system(a11, a12, a22, r1, r2, wx, wy, wx, wy, red, black)
-        redblack.split_field(u, ur, ub)
-        redblack.split_field(v, vr, vb)
-        redblack.solve_sor(red, black, ur, ub, vr, vb, n_sor, omega)
-        redblack.merge_field(ur, ub, u)
-        redblack.merge_field(vr, vb, v)
+        redblack.fill_neumann_ghosts(ur, ub, w)
+        redblack.fill_neumann_ghosts(vr, vb, w)
+        for c in range(2):
+            # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
+            s2[c][:] = 0.0
+            redblack.compact_gradient_sq(us[c], us[1 - c], c, s2[c])
+            redblack.compact_gradient_sq(vs[c], vs[1 - c], c, s2[c])
+            redblack.compact_charbonnier_prime(s2[c], eps, psi[c])
+        for c in range(2):
+            coef = coefs[c]
+            redblack.compact_edge_weights(psi[c], psi[1 - c], masks[c], alpha, c, coef,
+                                          redblack.W1)
+            coef[redblack.W2:redblack.W2 + 4] = coef[redblack.W1:redblack.W1 + 4]
+            _compact_data_terms(inputs[0][c], inputs[1][c], inputs[2][c], inputs[3][c],
+                                inputs[4][c], inputs[5][c], inputs[6][c], inputs[7][c],
+                                inputs[8][c], us[c], vs[c], u0[c], v0[c], beta, eps, coef,
+                                a11[c], a22[c])
+            redblack.finish_diagonals(coef, a11[c], a22[c])
+        redblack.solve_sor(coefs[0], coefs[1], ur, ub, vr, vb, n_sor, omega)
+    redblack.merge_field(ur, ub, u)
+    redblack.merge_field(vr, vb, v)
 
 
 def _level_flow(

@@ -1,0 +1,65 @@
+"""Helpers shared by the benchmarks: realistic inputs and robust timing.
+
+Benchmarks are not tests: they print medians after warm-up and ratios against a
+reference measured in the same run, because this machine is shared and noisy.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+
+def differential_like_pair(
+    shape: tuple[int, int] = (240, 320), shift: tuple[float, float] = (1.2, -0.8), seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Two consecutive differential-image-like frames in [0, 1] (H, W) float32.
+
+    Smooth gas-like blobs of both signs around the neutral level 0.5 (paper Eq. 2 images
+    after normalisation), moving by ``shift`` px, plus independent sensor noise.
+    """
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+
+    def blobs(dx: float, dy: float) -> np.ndarray:
+        r = np.random.default_rng(seed)
+        img = np.zeros(shape, np.float32)
+        for _ in range(25):
+            cx, cy = r.uniform(0.2 * w, 0.8 * w), r.uniform(0.15 * h, 0.85 * h)
+            s = r.uniform(6, 25)
+            a = r.uniform(-0.25, 0.25)
+            img += a * np.exp(-((xx - cx - dx) ** 2 + (yy - cy - dy) ** 2) / (2 * s * s))
+        return img
+
+    noise = lambda: rng.normal(0, 0.01, shape).astype(np.float32)  # noqa: E731
+    f0 = np.clip(0.5 + blobs(0, 0) + noise(), 0, 1)
+    f1 = np.clip(0.5 + blobs(*shift) + noise(), 0, 1)
+    return f0.astype(np.float32), f1.astype(np.float32)
+
+
+def median_ms(fn: Callable[[], object], *, warmup: int = 3, runs: int = 30) -> float:
+    """Median wall time of ``fn`` in ms over ``runs`` calls after ``warmup`` calls."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times)
+
+
+def single_thread() -> None:
+    """Pin OpenCV and numba to one thread: the targets are per core."""
+    cv2.setNumThreads(1)
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
