@@ -357,12 +357,20 @@ class Recorder:
                 item = None
                 if self._stop.is_set():
                     break
-            if item is not None:
-                with self._lock:
-                    self._queued_items -= 1
-                    self._queued_bytes -= len(item.payload)
-                self._write(item)
-            self._housekeeping()
+            try:
+                if item is not None:
+                    with self._lock:
+                        self._queued_items -= 1
+                        self._queued_bytes -= len(item.payload)
+                    self._write(item)
+                self._housekeeping()
+            except Exception as exc:  # never let the writer thread die: count, log, go on
+                log.exception("recorder: unexpected error")
+                self._error(f"unexpected {type(exc).__name__}: {exc}")
+                if item is not None:
+                    with self._lock:
+                        self._drops[item.topic] += 1
+                self._abandon_file()
         if self._file is not None:
             self._close_file()
 
