@@ -154,7 +154,7 @@ def blueprint() -> Any:
         rrb.Spatial2DView(origin="flow", name="optical flow w_L"),
         rrb.Spatial2DView(origin="disparity", name="disparity d_L"),
         rrb.Spatial2DView(origin="gas/mask", name="gas mask"),
-        rrb.Spatial3DView(origin="gas", contents="gas/velocity3d", name="3D gas velocity V"),
+        rrb.Spatial3DView(origin="gas/velocity3d", name="3D gas velocity V"),
     )
     plots = rrb.Vertical(
         rrb.TimeSeriesView(origin="plots/speed", name="mean speed (m/s): gas vs wind"),
@@ -163,7 +163,9 @@ def blueprint() -> Any:
         rrb.TimeSeriesView(origin="plots/angle/z", name="angle to Z (deg)"),
         rrb.TimeSeriesView(origin="health", name="health"),
     )
-    return rrb.Blueprint(rrb.Horizontal(images, plots, column_shares=[3, 2]),
+    # A live view follows the newest data on the pair-index timeline.
+    time_panel = rrb.TimePanel(timeline="frame", play_state="following")
+    return rrb.Blueprint(rrb.Horizontal(images, plots, column_shares=[3, 2]), time_panel,
                          collapse_panels=True)
 
 
