@@ -30,6 +30,9 @@ __all__ = [
     "StreamCounter",
     "StreamStats",
     "disk_free_source",
+    "live_sink",
+    "log_sink",
+    "mcap_sink",
     "status_line",
 ]
 
@@ -291,3 +294,41 @@ class HealthReporter:
         if self.notifier is not None:
             self.notifier.status(status_line(snap))
         return snap
+
+
+# --------------------------------------------------------------------------- ready-made sinks
+
+
+def mcap_sink(recorder: Any, topic: str = "/health") -> Callable[[HealthSnapshot], None]:
+    """Sink recording each snapshot as ``ogiflow.Health`` JSON through ``recorder.record``."""
+    from appliance.schemas import HEALTH, encode_json
+
+    def sink(snap: HealthSnapshot) -> None:
+        recorder.record(topic, HEALTH, encode_json(HEALTH, snap.to_dict()), snap.t_wall_ns)
+
+    return sink
+
+
+def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
+    """Sink pushing each snapshot's numbers to the live view (``health/...`` plots)."""
+    from appliance.live import health_scalars
+
+    def sink(snap: HealthSnapshot) -> None:
+        view.push(health_scalars(snap))
+
+    return sink
+
+
+def log_sink(logger: logging.Logger = log, every: int = 10) -> Callable[[HealthSnapshot], None]:
+    """Sink writing :func:`status_line` to the log (journald) every ``every`` snapshots, and at
+    once whenever the stall state changes."""
+    state = {"n": 0, "stalled": False}
+
+    def sink(snap: HealthSnapshot) -> None:
+        changed = snap.stalled != state["stalled"]
+        state["stalled"] = snap.stalled
+        if changed or state["n"] % every == 0:
+            (logger.warning if snap.stalled else logger.info)("health: %s", status_line(snap))
+        state["n"] += 1
+
+    return sink
