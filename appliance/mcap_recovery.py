@@ -166,62 +166,66 @@ def recover(source: str | Path, output: str | Path | None = None, *,
         raise ValueError(f"recover: output {dst} exists (use --force to replace it)")
     report = RecoveryReport(source=src, output=dst)
     tmp = dst.with_name(dst.name + ".tmp")
-    with open(src, "rb") as fin:
-        if fin.read(len(MAGIC)) != MAGIC:
-            raise ValueError(f"recover: {src} is not an MCAP file (bad magic)")
-        with open(tmp, "wb") as fout:
-            rw: _Rewriter | None = None
-            header: Header | None = None
-            compression = CompressionType.ZSTD
-            while True:
-                head = fin.read(_RECORD_HEAD.size)
-                if len(head) < _RECORD_HEAD.size:
-                    report.truncated_bytes += len(head)
-                    break
-                opcode, length = _RECORD_HEAD.unpack(head)
-                body = fin.read(length)
-                if len(body) < length:
-                    report.truncated_bytes += len(head) + len(body)
-                    break
-                if opcode in (Opcode.DATA_END, Opcode.FOOTER):
-                    report.input_was_complete = True
-                    break
-                if opcode == Opcode.HEADER:
-                    header = _parse(Header, body)  # type: ignore[assignment]
-                    continue
+    try:
+        with open(src, "rb") as fin:
+            if fin.read(len(MAGIC)) != MAGIC:
+                raise ValueError(f"recover: {src} is not an MCAP file (bad magic)")
+            with open(tmp, "wb") as fout:
+                rw: _Rewriter | None = None
+                header: Header | None = None
+                compression = CompressionType.ZSTD
+                while True:
+                    head = fin.read(_RECORD_HEAD.size)
+                    if len(head) < _RECORD_HEAD.size:
+                        report.truncated_bytes += len(head)
+                        break
+                    opcode, length = _RECORD_HEAD.unpack(head)
+                    body = fin.read(length)
+                    if len(body) < length:
+                        report.truncated_bytes += len(head) + len(body)
+                        break
+                    if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                        report.input_was_complete = True
+                        break
+                    if opcode == Opcode.HEADER:
+                        header = _parse(Header, body)  # type: ignore[assignment]
+                        continue
+                    if rw is None:
+                        rw = _Rewriter(fout, compression)
+                        rw.start(header)
+                    if opcode == Opcode.CHUNK:
+                        chunk: Chunk = _parse(Chunk, body)  # type: ignore[assignment]
+                        try:
+                            records = breakup_chunk(chunk, validate_crc=True)
+                        except (McapError, ValueError, zlib.error, struct.error, EOFError,
+                                zstandard.ZstdError, RuntimeError):
+                            # RuntimeError: what lz4.frame raises on corrupt data.
+                            report.chunks_corrupt += 1
+                            continue
+                        report.chunks_kept += 1
+                        for rec in records:
+                            report.messages_kept += rw.add(rec)
+                    elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+                        rtype = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
+                                 Opcode.MESSAGE: Message}[opcode]
+                        report.messages_kept += rw.add(_parse(rtype, body, length))
+                    elif opcode == Opcode.METADATA:
+                        md: Metadata = _parse(Metadata, body)  # type: ignore[assignment]
+                        rw.writer.add_metadata(md.name, dict(md.metadata))
+                        report.metadata_kept += 1
+                    elif opcode == Opcode.ATTACHMENT:
+                        at: Attachment = _parse(Attachment, body)  # type: ignore[assignment]
+                        rw.writer.add_attachment(at.create_time, at.log_time, at.name,
+                                                 at.media_type, at.data)
+                        report.attachments_kept += 1
+                    # Indexes and other records are rebuilt by the writer or not needed.
                 if rw is None:
                     rw = _Rewriter(fout, compression)
                     rw.start(header)
-                if opcode == Opcode.CHUNK:
-                    chunk: Chunk = _parse(Chunk, body)  # type: ignore[assignment]
-                    try:
-                        records = breakup_chunk(chunk, validate_crc=True)
-                    except (McapError, ValueError, zlib.error, struct.error, EOFError,
-                            zstandard.ZstdError, RuntimeError):
-                        # RuntimeError: what lz4.frame raises on corrupt data.
-                        report.chunks_corrupt += 1
-                        continue
-                    report.chunks_kept += 1
-                    for rec in records:
-                        report.messages_kept += rw.add(rec)
-                elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
-                    rtype = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
-                             Opcode.MESSAGE: Message}[opcode]
-                    report.messages_kept += rw.add(_parse(rtype, body, length))
-                elif opcode == Opcode.METADATA:
-                    md: Metadata = _parse(Metadata, body)  # type: ignore[assignment]
-                    rw.writer.add_metadata(md.name, dict(md.metadata))
-                    report.metadata_kept += 1
-                elif opcode == Opcode.ATTACHMENT:
-                    at: Attachment = _parse(Attachment, body)  # type: ignore[assignment]
-                    rw.writer.add_attachment(at.create_time, at.log_time, at.name,
-                                             at.media_type, at.data)
-                    report.attachments_kept += 1
-                # Indexes and other records are rebuilt by the writer or not needed.
-            if rw is None:
-                rw = _Rewriter(fout, compression)
-                rw.start(header)
-            rw.writer.finish()
-            fout.flush()
+                rw.writer.finish()
+                fout.flush()
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # no half-written output
+        raise
     tmp.replace(dst)
     return report

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import json
+import logging
 import socket
 import time
 from pathlib import Path
+
+import pytest
 
 from appliance import schemas as S
 from appliance.health import (
@@ -13,6 +17,8 @@ from appliance.health import (
     HealthSnapshot,
     StreamCounter,
     disk_free_source,
+    log_sink,
+    mcap_sink,
     status_line,
 )
 from appliance.sdnotify import SdNotifier, Watchdog
@@ -83,6 +89,36 @@ def test_stall_detected_from_frame_streams() -> None:
     snap = mon.snapshot()
     assert snap.stalled
     assert status_line(snap).startswith("STALLED")
+
+
+def test_log_sink_logs_periodically_and_on_stall_changes(
+        caplog: pytest.LogCaptureFixture) -> None:
+    sink = log_sink(logging.getLogger("test.health"), every=3)
+    snaps = [HealthSnapshot(t_mono_ns=0, t_wall_ns=0, uptime_s=float(i), stalled=i in (4, 5))
+             for i in range(7)]
+    with caplog.at_level(logging.INFO, logger="test.health"):
+        for snap in snaps:
+            sink(snap)
+    # snapshot 0 and 3 (every 3rd), 4 (stall begins: a warning), 6 (every 3rd, recovered)
+    assert [r.levelname for r in caplog.records] == ["INFO", "INFO", "WARNING", "INFO"]
+    assert caplog.records[2].getMessage() == "health: STALLED: no frames"
+
+
+def test_mcap_sink_records_valid_health_json() -> None:
+    got: list[tuple] = []
+
+    class FakeRecorder:
+        def record(self, *args: object) -> bool:
+            got.append(args)
+            return True
+
+    mon = HealthMonitor()
+    mon.stream("cam/left").tick()
+    mcap_sink(FakeRecorder())(mon.snapshot())
+    ((topic, schema, payload, log_time),) = got
+    assert topic == "/health" and schema is S.HEALTH
+    assert S.validate_json(S.HEALTH, json.loads(payload)) == []
+    assert isinstance(log_time, int)
 
 
 def test_reporter_feeds_sinks_status_and_watchdog(tmp_path: Path) -> None:

@@ -180,6 +180,7 @@ def test_not_an_mcap_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     src.write_bytes(b"hello world, not mcap")
     with pytest.raises(ValueError, match="not an MCAP file"):
         recover(src)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.mcap"]  # no half-written output
     assert cli.main(["recover", str(src)]) == cli.EXIT_USAGE
     assert "not an MCAP file" in capsys.readouterr().err
     assert cli.main(["recover", str(tmp_path / "missing.mcap")]) == cli.EXIT_USAGE
