@@ -25,7 +25,7 @@ from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, 
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-__all__ = ["MAGIC", "RecoveryReport", "default_output", "recover"]
+__all__ = ["MAGIC", "RecoveryReport", "default_output", "recover", "recover_unfinished"]
 
 MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 _RECORD_HEAD = struct.Struct("<BQ")
@@ -229,3 +229,44 @@ def recover(source: str | Path, output: str | Path | None = None, *,
         raise
     tmp.replace(dst)
     return report
+
+
+def recover_unfinished(directory: str | Path, *, remove_source: bool = True
+                       ) -> list[RecoveryReport]:
+    """Recover every ``ogiflow-*.mcap.active`` file left in ``directory`` by a crash.
+
+    Call at daemon start, before the recorder opens its first file. Each cut file becomes the
+    ``.mcap`` it would have been. The cut original is removed only after the output has been
+    read back with the seeking reader (its complete chunks are all in the output; the cut
+    tail cannot be decoded anyway); with ``remove_source=False`` it is kept.
+
+    Returns
+    -------
+    list of RecoveryReport
+        One per recovered file, oldest first. A file that cannot be recovered is left in place
+        and logged; it does not stop the others.
+    """
+    import logging
+
+    from mcap.reader import make_reader
+
+    from appliance.recorder import unfinished_files
+
+    log = logging.getLogger("ogiflow.recovery")
+    reports = []
+    for path in unfinished_files(Path(directory)):
+        try:
+            report = recover(path, default_output(path))
+            with open(report.output, "rb") as f:
+                summary = make_reader(f).get_summary()
+            if summary is None or summary.statistics is None or (
+                    summary.statistics.message_count != report.messages_kept):
+                raise ValueError(f"{report.output}: read-back does not match what was written")
+        except (OSError, ValueError) as exc:
+            log.error("could not recover %s: %s", path, exc)
+            continue
+        if remove_source:
+            path.unlink()
+        log.warning("recovered %s", report.summary())
+        reports.append(report)
+    return reports

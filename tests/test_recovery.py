@@ -19,7 +19,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from appliance import cli
 from appliance import schemas as S
-from appliance.mcap_recovery import default_output, recover
+from appliance.mcap_recovery import default_output, recover, recover_unfinished
 from appliance.recorder import unfinished_files
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -195,3 +195,18 @@ def test_cut_inside_the_header_gives_an_empty_valid_file(tmp_path: Path) -> None
     assert report.messages_kept == 0 and report.truncated_bytes == 4
     with open(tmp_path / "o.mcap", "rb") as f:
         assert list(make_reader(f).iter_messages()) == []
+
+
+def test_recover_unfinished_at_start(cut_file: tuple[Path, int], tmp_path: Path) -> None:
+    path, _ = cut_file
+    d = tmp_path / "rec"
+    d.mkdir()
+    copy = d / path.name
+    copy.write_bytes(path.read_bytes())
+    junk = d / "ogiflow-20200101T000000000Z-0001.mcap.active"
+    junk.write_bytes(b"garbage, not an mcap")
+    (report,) = recover_unfinished(d)
+    assert report.output == d / path.name.removesuffix(".active")
+    assert not copy.exists() and report.output.exists()
+    assert junk.exists()  # left in place for a human, the others still recovered
+    assert unfinished_files(d) == [junk]

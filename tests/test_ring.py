@@ -119,3 +119,16 @@ def test_worker_process_reads_in_place_and_claims_are_shared() -> None:
         lease.release()
         # The ring survived the worker's exit (it detached, it did not unlink).
         assert ring.stats().written == 7
+
+
+def test_writer_never_waits_for_readers() -> None:
+    """Readers serialise their claims on a lock; the writer never takes it."""
+    import threading
+
+    with PairRing.create(4, SHAPE) as ring:
+        with ring._lock:  # a reader stuck inside take_newest()
+            t = threading.Thread(target=_fill, args=(ring, 0, 100))
+            t.start()
+            t.join(30)
+            assert not t.is_alive()
+        assert ring.stats().written == 100
