@@ -236,10 +236,22 @@ def check_port_free(host: str, port: int, what: str) -> None:
                 f"--set live.{what}=PORT") from None
 
 
-def _set_pdeathsig() -> None:  # pragma: no cover - runs in the child between fork and exec
-    """Let the viewer server die with us (a leftover server would keep the ports busy)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+def _pdeathsig_hook() -> Any:
+    """A ``preexec_fn`` making the viewer server die with us (a leftover server would keep
+    the ports busy), or None where prctl is unavailable.
+
+    libc is loaded here, in the parent: the child, forked from a threaded process, only makes
+    the one system call before exec.
+    """
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+    def hook() -> None:  # pragma: no cover - runs in the child between fork and exec
+        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+    return hook
 
 
 def _rerun_binary() -> str:
@@ -326,6 +338,9 @@ class LiveView:
     def start(self) -> LiveView:
         """Open the sink (and, in serve mode, the server) and start the thread.
 
+        Call it from the main thread: in serve mode the viewer server is tied to the thread
+        that started it (PR_SET_PDEATHSIG) so that it never outlives a crashed appliance.
+
         Raises
         ------
         LiveViewError
@@ -364,7 +379,7 @@ class LiveView:
                "--server-memory-limit", self._memory_limit]
         self._server = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                        preexec_fn=_set_pdeathsig)
+                                        preexec_fn=_pdeathsig_hook())
         host = _client_host(bind)
         deadline = time.monotonic() + 30.0
         while True:
