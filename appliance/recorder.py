@@ -181,7 +181,9 @@ class _OpenFile:
 
     def sync(self) -> None:
         """Close the open chunk, flush and fsync (data survives a power cut)."""
+        # Writer.flush() (closes the open chunk) exists from mcap 1.6 on; pyproject asks for it.
         self.writer.flush()
+        self.stream.flush()
         os.fsync(self.stream.fileno())
         self.last_fsync = time.monotonic()
 
