@@ -12,7 +12,7 @@ dev=0
 apt_packages=(python3-venv python3-dev)
 if [ "$dev" = 1 ]; then
     # Tests: none yet beyond the runtime set (issue-specific packages are added here).
-    apt_packages+=()
+    apt_packages+=(systemd)
 fi
 
 missing=()

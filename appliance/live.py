@@ -1,0 +1,551 @@
+"""Rerun live view in its own thread, behind a small bounded queue that drops when full.
+
+A stalled viewer makes ``rr.log`` block for tens of seconds (DESIGN.md), so nothing but this
+module's thread ever calls Rerun: producers call :meth:`LiveView.push` with plain dataclasses
+(:class:`LiveFrame`, :class:`LiveScalars`), which returns at once; when the queue is full the
+item is dropped and counted. Images are encoded to JPEG in the live thread (not raw uint16:
+9.4 MB/s at 2 x 30 Hz).
+
+Modes (``live.mode``):
+
+- ``serve``: starts the Rerun gRPC server and web viewer (the ``rerun`` CLI as a child
+  process, ``--serve-web --bind ADDRESS``) after checking both ports are free on the bind
+  address, then streams to it. ``rr.serve_grpc`` / ``rr.serve_web_viewer`` cannot be used
+  here: they always listen on every interface and do not report a busy port, while the
+  viewer must stay on 127.0.0.1 unless the site decides otherwise.
+- ``connect``: streams to a viewer at ``live.url`` (``rr.connect_grpc``).
+- ``save``: writes an ``.rrd`` file (``rerun rrd verify`` checks it).
+- ``off``: nothing; :meth:`LiveView.push` is a no-op.
+
+Entity paths: ``cam/left/diff``, ``cam/right/diff``, ``flow``, ``disparity``, ``gas/mask``,
+``gas/velocity3d`` (Arrows3D at the virtual gas surface points), ``plots/speed/{gas,wind}``,
+``plots/angle/{x,y,z}/{gas,wind}`` (paper Fig. 8), ``health/<name>``. Timelines: ``frame``
+(pair index) and ``capture_time`` (wall clock).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import importlib.util
+import logging
+import os
+import queue
+import shutil
+import signal
+import socket
+import subprocess
+import threading
+import time
+import urllib.parse
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from appliance.config import LiveConfig
+
+__all__ = [
+    "LiveFrame",
+    "LiveScalars",
+    "LiveStats",
+    "LiveView",
+    "LiveViewError",
+    "blueprint",
+    "check_port_free",
+    "encode_jpeg",
+    "health_scalars",
+]
+
+log = logging.getLogger("ogiflow.live")
+
+APP_ID = "ogiflow"
+GAS_COLOR = (230, 120, 20)
+WIND_COLOR = (30, 110, 230)
+#: Arrows show the displacement over this many seconds (velocity in m/s times this).
+ARROW_SCALE_S = 0.2
+MAX_ARROWS = 2000
+
+
+class LiveViewError(RuntimeError):
+    """The live view could not start (port busy, server did not come up)."""
+
+
+@dataclass
+class LiveFrame:
+    """What the live view shows for one processed stereo pair; every image field is optional.
+
+    The arrays must belong to this item (not views into the ring buffer): the live thread
+    reads them later.
+
+    Attributes
+    ----------
+    frame
+        Pair index (the ``frame`` timeline).
+    t_capture_ns
+        Capture time of the pair, UNIX ns (the ``capture_time`` timeline).
+    diff_left, diff_right
+        (H, W) differential images (paper Eq. 2), float in [0, 1], uint8 or uint16.
+    flow
+        (H, W, 2) optical flow w_L = (u, v) in px/frame (Eq. 5), shown colour-coded.
+    disparity
+        (H, W) disparity d_L in px (Eq. 6); NaN where undefined.
+    gas_mask
+        (H, W) bool gas segmentation (Eq. 9).
+    points3d, velocity3d
+        (N, 3) points of the virtual gas surface (m) and their 3D velocity V (m/s, Eq. 4),
+        left camera frame.
+    gas_speed_m_s, gas_angles_deg
+        Mean gas velocity magnitude and directional angles to X, Y, Z (paper footnote 1).
+    wind_speed_m_s, wind_angles_deg
+        The anemometer's wind in the camera frame at this pair's time.
+    """
+
+    frame: int
+    t_capture_ns: int
+    diff_left: np.ndarray | None = None
+    diff_right: np.ndarray | None = None
+    flow: np.ndarray | None = None
+    disparity: np.ndarray | None = None
+    gas_mask: np.ndarray | None = None
+    points3d: np.ndarray | None = None
+    velocity3d: np.ndarray | None = None
+    gas_speed_m_s: float | None = None
+    gas_angles_deg: tuple[float, float, float] | None = None
+    wind_speed_m_s: float | None = None
+    wind_angles_deg: tuple[float, float, float] | None = None
+
+
+@dataclass
+class LiveScalars:
+    """Scalars logged under ``prefix/<name>`` (e.g. health: ``health/cam_left_rate_hz``)."""
+
+    t_capture_ns: int
+    values: Mapping[str, float | None]
+    prefix: str = "health"
+    frame: int | None = None
+
+
+@dataclass
+class LiveStats:
+    """Counters of the live view."""
+
+    pushed: int = 0
+    dropped: int = 0
+    logged: int = 0
+    errors: int = 0
+    last_error: str = ""
+    url: str = ""
+
+
+# --------------------------------------------------------------------------- blueprint
+
+
+def blueprint() -> Any:
+    """The viewer layout: images and 3D velocity left, the Fig. 8 comparison and health right."""
+    import rerun.blueprint as rrb
+
+    images = rrb.Grid(
+        rrb.Spatial2DView(origin="cam/left/diff", name="left differential image"),
+        rrb.Spatial2DView(origin="cam/right/diff", name="right differential image"),
+        rrb.Spatial2DView(origin="flow", name="optical flow w_L"),
+        rrb.Spatial2DView(origin="disparity", name="disparity d_L"),
+        rrb.Spatial2DView(origin="gas/mask", name="gas mask"),
+        rrb.Spatial3DView(origin="gas/velocity3d", name="3D gas velocity V"),
+    )
+    plots = rrb.Vertical(
+        rrb.TimeSeriesView(origin="plots/speed", name="mean speed (m/s): gas vs wind"),
+        rrb.TimeSeriesView(origin="plots/angle/x", name="angle to X (deg)"),
+        rrb.TimeSeriesView(origin="plots/angle/y", name="angle to Y (deg)"),
+        rrb.TimeSeriesView(origin="plots/angle/z", name="angle to Z (deg)"),
+        rrb.TimeSeriesView(origin="health", name="health"),
+    )
+    # A live view follows the newest data on the pair-index timeline.
+    time_panel = rrb.TimePanel(timeline="frame", play_state="following")
+    return rrb.Blueprint(rrb.Horizontal(images, plots, column_shares=[3, 2]), time_panel,
+                         collapse_panels=True)
+
+
+# --------------------------------------------------------------------------- encoding
+
+
+def _to_u8(img: np.ndarray) -> np.ndarray:
+    """Display bytes: bool -> 0/255, float in [0, 1] -> x255, uint16 -> min-max stretched."""
+    a = np.asarray(img)
+    if a.dtype == np.bool_:
+        return a.astype(np.uint8) * 255
+    if a.dtype == np.uint8:
+        return a
+    if np.issubdtype(a.dtype, np.floating):
+        return (np.nan_to_num(np.clip(a, 0.0, 1.0)) * 255.0 + 0.5).astype(np.uint8)
+    lo, hi = float(a.min()), float(a.max())
+    scale = 255.0 / (hi - lo) if hi > lo else 0.0
+    return ((a.astype(np.float32) - lo) * scale).astype(np.uint8)
+
+
+def _flow_bgr(flow: np.ndarray) -> np.ndarray:
+    """Colour-coded flow: hue = direction, brightness = magnitude (relative to the maximum)."""
+    f = np.nan_to_num(np.asarray(flow, np.float32))
+    mag, ang = cv2.cartToPolar(f[..., 0], f[..., 1], angleInDegrees=True)
+    hsv = np.zeros((*f.shape[:2], 3), np.uint8)
+    hsv[..., 0] = (ang / 2).astype(np.uint8)
+    hsv[..., 1] = 255
+    top = float(mag.max())
+    hsv[..., 2] = (np.clip(mag / top, 0, 1) * 255).astype(np.uint8) if top > 0 else 0
+    return cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+
+
+def _disparity_bgr(disp: np.ndarray) -> np.ndarray:
+    d = np.asarray(disp, np.float32)
+    ok = np.isfinite(d)
+    out = np.zeros(d.shape, np.uint8)
+    if ok.any():
+        lo, hi = float(d[ok].min()), float(d[ok].max())
+        out[ok] = ((d[ok] - lo) / (hi - lo) * 254 + 1).astype(np.uint8) if hi > lo else 128
+    bgr = cv2.applyColorMap(out, cv2.COLORMAP_TURBO)
+    bgr[~ok] = 0
+    return bgr
+
+
+def encode_jpeg(img: np.ndarray, quality: int) -> bytes:
+    """JPEG bytes of a (H, W) or (H, W, 3) BGR uint8 image."""
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed for an image of shape {img.shape}")
+    return buf.tobytes()
+
+
+# --------------------------------------------------------------------------- ports / server
+
+
+def check_port_free(host: str, port: int, what: str) -> None:
+    """Raise :class:`LiveViewError` naming the setting when ``host:port`` cannot be bound."""
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        # Like the servers themselves: TIME_WAIT leftovers do not count as busy.
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError as exc:
+            raise LiveViewError(
+                f"live.{what} {port} on {host} is not available ({exc.strerror}); another "
+                f"program (or another ogiflow) uses it - stop it or choose another port with "
+                f"--set live.{what}=PORT") from None
+
+
+def _pdeathsig_hook() -> Any:
+    """A ``preexec_fn`` making the viewer server die with us (a leftover server would keep
+    the ports busy), or None where prctl is unavailable.
+
+    libc is loaded here, in the parent: the child, forked from a threaded process, only makes
+    the one system call before exec.
+    """
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+
+    def hook() -> None:  # pragma: no cover - runs in the child between fork and exec
+        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+    return hook
+
+
+def _rerun_binary() -> str:
+    """The Rerun CLI binary shipped in rerun-sdk (run directly, not through ``python -m
+    rerun``, whose wrapper process would survive as the only one we can stop)."""
+    override = os.environ.get("RERUN_CLI_PATH")
+    if override:
+        return override
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.origin is not None:
+        path = Path(spec.origin).parent / "rerun"
+        if path.is_file():
+            return str(path)
+    found = shutil.which("rerun")
+    if found is None:
+        raise LiveViewError("the Rerun viewer binary (package rerun-sdk) was not found")
+    return found
+
+
+def _client_host(bind: str) -> str:
+    return {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(bind, bind)
+
+
+def _url_host(host: str) -> str:
+    return f"[{host}]" if ":" in host else host
+
+
+# --------------------------------------------------------------------------- the view
+
+_STOP = object()
+
+
+class LiveView:
+    """The live view thread. ``start()``, ``push()`` from anywhere, ``close()``.
+
+    Parameters
+    ----------
+    cfg
+        The ``live`` section of the configuration.
+    server_memory_limit
+        Serve mode: how much the gRPC server buffers for late viewers.
+    """
+
+    def __init__(self, cfg: LiveConfig, *, server_memory_limit: str = "512MB") -> None:
+        self.cfg = cfg
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=cfg.queue_size)
+        self._lock = threading.Lock()
+        self._stats = LiveStats()
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._rec: Any = None
+        self._server: subprocess.Popen[bytes] | None = None
+        self._memory_limit = server_memory_limit
+        self._styled: set[str] = set()
+
+    # ------------------------------------------------------------------ producer side
+
+    def push(self, item: LiveFrame | LiveScalars) -> bool:
+        """Queue an item for display; never blocks. False (and counted) when dropped."""
+        if self._thread is None:
+            return False
+        try:
+            self._queue.put_nowait(item)
+        except queue.Full:
+            with self._lock:
+                self._stats.dropped += 1
+            return False
+        with self._lock:
+            self._stats.pushed += 1
+        return True
+
+    def stats(self) -> LiveStats:
+        """A copy of the counters."""
+        with self._lock:
+            return LiveStats(**self._stats.__dict__)
+
+    @property
+    def url(self) -> str:
+        """Where to watch (serve), where it streams (connect) or the file (save)."""
+        return self._stats.url
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> LiveView:
+        """Open the sink (and, in serve mode, the server) and start the thread.
+
+        Call it from the main thread: in serve mode the viewer server is tied to the thread
+        that started it (PR_SET_PDEATHSIG) so that it never outlives a crashed appliance.
+
+        Raises
+        ------
+        LiveViewError
+            A port is busy or the server did not start.
+        """
+        mode = self.cfg.mode
+        if mode == "off":
+            return self
+        import rerun as rr
+
+        self._rec = rr.RecordingStream(application_id=APP_ID)
+        bp = blueprint()
+        if mode == "save":
+            path = Path(self.cfg.file)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._rec.save(str(path), default_blueprint=bp)
+            self._stats.url = str(path)
+        elif mode == "connect":
+            self._rec.connect_grpc(self.cfg.url, default_blueprint=bp)
+            self._stats.url = self.cfg.url
+        elif mode == "serve":
+            grpc_url = self._start_server()
+            self._rec.connect_grpc(grpc_url, default_blueprint=bp)
+        else:
+            raise ValueError(f"live.mode: unknown mode {mode!r}")
+        self._thread = threading.Thread(target=self._run, name="live-view", daemon=True)
+        self._thread.start()
+        return self
+
+    def _start_server(self) -> str:
+        bind, grpc_port, web_port = self.cfg.bind, self.cfg.grpc_port, self.cfg.web_port
+        check_port_free(bind, grpc_port, "grpc_port")
+        check_port_free(bind, web_port, "web_port")
+        cmd = [_rerun_binary(), "--serve-web", "--bind", bind,
+               "--port", str(grpc_port), "--web-viewer-port", str(web_port),
+               "--server-memory-limit", self._memory_limit]
+        self._server = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                        preexec_fn=_pdeathsig_hook())
+        host = _client_host(bind)
+        deadline = time.monotonic() + 30.0
+        while True:
+            if self._server.poll() is not None:
+                raise LiveViewError(f"the Rerun viewer server exited at start "
+                                    f"(code {self._server.returncode}): {' '.join(cmd)}")
+            try:
+                socket.create_connection((host, grpc_port), timeout=0.5).close()
+                break
+            except OSError:
+                if time.monotonic() > deadline:
+                    self._stop_server()
+                    raise LiveViewError(f"the Rerun viewer server did not listen on "
+                                        f"{host}:{grpc_port} within 30 s") from None
+                time.sleep(0.1)
+        grpc_url = f"rerun+http://{_url_host(host)}:{grpc_port}/proxy"
+        shown = _url_host(socket.gethostname() if bind in ("0.0.0.0", "::") else host)
+        view = f"rerun+http://{shown}:{grpc_port}/proxy"
+        self._stats.url = (f"http://{shown}:{web_port}/?url="
+                           f"{urllib.parse.quote(view, safe='')}")
+        return grpc_url
+
+    def _stop_server(self) -> None:
+        srv, self._server = self._server, None
+        if srv is None:
+            return
+        srv.terminate()
+        try:
+            srv.wait(5)
+        except subprocess.TimeoutExpired:
+            srv.kill()
+            srv.wait(5)
+
+    def close(self, timeout: float = 3.0) -> bool:
+        """Stop the thread and the sink. Returns False when the thread was stuck in Rerun
+        (a stalled viewer): it is then abandoned (a daemon thread) rather than waited for."""
+        ok = True
+        if self._thread is not None:
+            self._stop.set()
+            with contextlib.suppress(queue.Full):
+                self._queue.put_nowait(_STOP)
+            self._thread.join(timeout)
+            if self._thread.is_alive():
+                log.warning("live view: Rerun did not return within %.1f s; abandoning it",
+                            timeout)
+                ok = False
+            elif self._rec is not None:
+                try:
+                    self._rec.flush(timeout_sec=timeout)
+                    self._rec.disconnect()
+                except Exception as exc:  # a viewer problem must not fail the shutdown
+                    log.warning("live view: closing the stream failed: %s", exc)
+            self._thread = None
+        self._stop_server()
+        return ok
+
+    def __enter__(self) -> LiveView:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ live thread
+
+    def _run(self) -> None:
+        self._log_styles()
+        while True:
+            try:
+                item = self._queue.get(timeout=0.2)
+            except queue.Empty:
+                if self._stop.is_set():
+                    break
+                continue
+            if item is _STOP:
+                break
+            try:
+                if isinstance(item, LiveFrame):
+                    self._log_frame(item)
+                else:
+                    self._log_scalars(item)
+                with self._lock:
+                    self._stats.logged += 1
+            except Exception as exc:  # bad item or viewer error: count it, keep the view alive
+                with self._lock:
+                    self._stats.errors += 1
+                    self._stats.last_error = f"{type(exc).__name__}: {exc}"
+                if self._stats.errors in (1, 10, 100) or self._stats.errors % 1000 == 0:
+                    log.warning("live view: %s (%d errors)", exc, self._stats.errors)
+
+    def _log(self, path: str, *args: Any, **kwargs: Any) -> None:
+        self._rec.log(path, *args, **kwargs)
+
+    def _log_styles(self) -> None:
+        import rerun as rr
+
+        for quantity in ("speed", "angle/x", "angle/y", "angle/z"):
+            for src, color, label in (("gas", GAS_COLOR, "gas (scene flow)"),
+                                      ("wind", WIND_COLOR, "wind (anemometer)")):
+                self._log(f"plots/{quantity}/{src}",
+                          rr.SeriesLines(colors=[color], names=[label], widths=[2.0]),
+                          static=True)
+
+    def _set_time(self, frame: int | None, t_ns: int) -> None:
+        if frame is not None:
+            self._rec.set_time("frame", sequence=int(frame))
+        self._rec.set_time("capture_time", timestamp=np.datetime64(int(t_ns), "ns"))
+
+    def _image(self, path: str, bgr_or_gray: np.ndarray) -> None:
+        import rerun as rr
+
+        data = encode_jpeg(bgr_or_gray, self.cfg.jpeg_quality)
+        self._log(path, rr.EncodedImage(contents=data, media_type="image/jpeg"))
+
+    def _log_frame(self, f: LiveFrame) -> None:
+        import rerun as rr
+
+        self._set_time(f.frame, f.t_capture_ns)
+        if f.diff_left is not None:
+            self._image("cam/left/diff", _to_u8(f.diff_left))
+        if f.diff_right is not None:
+            self._image("cam/right/diff", _to_u8(f.diff_right))
+        if f.flow is not None:
+            self._image("flow", _flow_bgr(f.flow))
+        if f.disparity is not None:
+            self._image("disparity", _disparity_bgr(f.disparity))
+        if f.gas_mask is not None:
+            self._image("gas/mask", _to_u8(np.asarray(f.gas_mask, bool)))
+        if f.points3d is not None and f.velocity3d is not None:
+            pts = np.asarray(f.points3d, np.float32).reshape(-1, 3)
+            vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)
+            ok = np.isfinite(pts).all(1) & np.isfinite(vel).all(1)
+            pts, vel = pts[ok], vel[ok]
+            if len(pts) > MAX_ARROWS:
+                keep = np.linspace(0, len(pts) - 1, MAX_ARROWS).astype(int)
+                pts, vel = pts[keep], vel[keep]
+            self._log("gas/velocity3d", rr.Arrows3D(origins=pts, vectors=vel * ARROW_SCALE_S,
+                                                    colors=[GAS_COLOR]))
+        for src, speed, angles in (("gas", f.gas_speed_m_s, f.gas_angles_deg),
+                                   ("wind", f.wind_speed_m_s, f.wind_angles_deg)):
+            if speed is not None and np.isfinite(speed):
+                self._log(f"plots/speed/{src}", rr.Scalars(float(speed)))
+            if angles is not None:
+                for axis, a in zip("xyz", angles, strict=True):
+                    if a is not None and np.isfinite(a):
+                        self._log(f"plots/angle/{axis}/{src}", rr.Scalars(float(a)))
+
+    def _log_scalars(self, s: LiveScalars) -> None:
+        import rerun as rr
+
+        self._set_time(s.frame, s.t_capture_ns)
+        for name, value in s.values.items():
+            if value is not None and np.isfinite(value):
+                self._log(f"{s.prefix}/{name}", rr.Scalars(float(value)))
+
+
+def health_scalars(snapshot: Any) -> LiveScalars:
+    """A :class:`LiveScalars` of the numbers worth plotting from a health snapshot."""
+    values: dict[str, float | None] = {}
+    for name, s in snapshot.streams.items():
+        key = name.replace("/", "_")
+        values[f"{key}_rate_hz"] = s.rate_hz
+        values[f"{key}_drops"] = float(s.drops)
+    for name, lat in snapshot.latencies.items():
+        values[f"{name.replace('/', '_')}_latency_ms"] = lat["mean_ms"]
+    for name, v in snapshot.counters.items():
+        values[name] = float(v)
+    values.update(snapshot.gauges)
+    return LiveScalars(t_capture_ns=snapshot.t_wall_ns, values=values)
+

@@ -1,0 +1,217 @@
+"""Rerun live view: .rrd output, blueprint, serve mode ports, and a stalled viewer never
+stalling the producer."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from appliance.config import LiveConfig
+from appliance.health import HealthMonitor
+from appliance.live import (
+    LiveFrame,
+    LiveScalars,
+    LiveView,
+    LiveViewError,
+    _disparity_bgr,
+    _flow_bgr,
+    _to_u8,
+    blueprint,
+    health_scalars,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cfg(**kw: object) -> LiveConfig:
+    return dataclasses.replace(LiveConfig(), **kw)  # type: ignore[arg-type]
+
+
+def _frame(i: int, rng: np.random.Generator) -> LiveFrame:
+    return LiveFrame(
+        frame=i, t_capture_ns=1_700_000_000_000_000_000 + i * 33_333_333,
+        diff_left=rng.random((240, 320)), diff_right=rng.random((240, 320)).astype(np.float32),
+        flow=rng.normal(size=(240, 320, 2)).astype(np.float32),
+        disparity=np.where(rng.random((240, 320)) > 0.1, rng.random((240, 320)) * 30, np.nan),
+        gas_mask=rng.random((240, 320)) > 0.7,
+        points3d=rng.normal(size=(300, 3)) + np.array([0.0, 0.0, 8.0]),
+        velocity3d=rng.normal(size=(300, 3)),
+        gas_speed_m_s=1.0 + 0.01 * i, gas_angles_deg=(80.0, 95.0, 12.0),
+        wind_speed_m_s=1.1, wind_angles_deg=(85.0, 90.0, float("nan")))
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_save_mode_writes_a_verified_rrd(tmp_path: Path) -> None:
+    path = tmp_path / "live" / "view.rrd"
+    view = LiveView(_cfg(mode="save", file=path, queue_size=64)).start()
+    assert view.url == str(path)
+    rng = np.random.default_rng(0)
+    mon = HealthMonitor()
+    mon.stream("cam/left").tick()
+    mon.count("skipped_pairs", 2)
+    for i in range(10):
+        assert view.push(_frame(i, rng))
+    assert view.push(health_scalars(mon.snapshot()))
+    assert view.push(LiveScalars(t_capture_ns=1, values={"bad": None, "x": 1.0}, prefix="misc"))
+    assert view.close()
+    st = view.stats()
+    assert (st.pushed, st.dropped, st.logged, st.errors) == (12, 0, 12, 0), st.last_error
+    result = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(path)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "verified without error" in result.stdout + result.stderr
+
+
+def test_blueprint_names_every_view() -> None:
+    origins: set[str] = set()
+
+    def walk(node: object) -> None:
+        if hasattr(node, "origin"):
+            origins.add(str(node.origin))
+            origins.add(str(node.contents))  # the 3D view names gas/velocity3d here
+        elif getattr(node, "contents", None):
+            for child in node.contents:
+                walk(child)
+
+    walk(blueprint().root_container)
+    text = " ".join(sorted(origins))
+    for origin in ("cam/left/diff", "cam/right/diff", "flow", "disparity", "gas/mask",
+                   "gas/velocity3d", "plots/speed", "plots/angle/x", "plots/angle/y",
+                   "plots/angle/z", "health"):
+        assert origin in text, origin
+
+
+def test_stalled_logging_never_blocks_the_producer(tmp_path: Path,
+                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    view = LiveView(_cfg(mode="save", file=tmp_path / "x.rrd", queue_size=8))
+    gate = threading.Event()
+    real_log = view._log
+
+    def stuck(*args: object, **kwargs: object) -> None:  # a viewer that never reads
+        gate.wait(60)
+        real_log(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(view, "_log", stuck)
+    view.start()
+    rng = np.random.default_rng(1)
+    item = _frame(0, rng)
+    n = 5000
+    results: list[bool] = []
+    t = threading.Thread(target=lambda: results.extend(view.push(item) for _ in range(n)))
+    t.start()
+    t.join(30)  # bounded: the producer must finish although nothing is being logged
+    assert not t.is_alive(), "push() blocked on a stalled viewer"
+    st = view.stats()
+    assert st.pushed + st.dropped == n and st.pushed == sum(results)
+    assert st.pushed <= 8 + 1  # the queue, plus the item stuck in the logging call
+    assert st.dropped >= n - 9
+    assert not view.close(timeout=0.5)  # abandons the stuck thread instead of hanging
+    gate.set()
+
+
+STALLED_CHILD = textwrap.dedent("""
+    import dataclasses, os, socket, sys, threading, time
+    import numpy as np
+    from appliance.config import LiveConfig
+    from appliance.live import LiveFrame, LiveView
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(8)
+    port = srv.getsockname()[1]
+    conns = []
+    threading.Thread(target=lambda: [conns.append(srv.accept()) for _ in range(8)],
+                     daemon=True).start()  # accepts, never reads
+    cfg = dataclasses.replace(LiveConfig(), mode="connect",
+                              url=f"rerun+http://127.0.0.1:{port}/proxy", queue_size=8)
+    view = LiveView(cfg).start()
+    rng = np.random.default_rng(0)
+    img = rng.random((240, 320))
+    n = 3000
+    done = threading.Event()
+    def produce():
+        for i in range(n):
+            view.push(LiveFrame(frame=i, t_capture_ns=i, diff_left=img, diff_right=img,
+                                gas_speed_m_s=1.0))
+        done.set()
+    t = threading.Thread(target=produce, daemon=True)
+    t.start()
+    t.join(60)
+    st = view.stats()
+    print("producer_done" if done.is_set() else "producer_blocked", st.pushed, st.dropped,
+          st.logged, flush=True)
+    view.close(timeout=0.5)
+    os._exit(0)  # do not let Rerun's exit hook wait for the stalled peer
+""")
+
+
+def test_stalled_viewer_socket_never_blocks_the_producer() -> None:
+    """A viewer endpoint that accepts the connection and never reads."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", STALLED_CHILD], capture_output=True,
+                         text=True, env=env, timeout=180)
+    words = out.stdout.split()
+    assert words and words[0] == "producer_done", out.stdout + out.stderr
+    pushed, dropped = int(words[1]), int(words[2])
+    assert pushed + dropped == 3000
+
+
+def test_serve_mode_serves_and_frees_its_ports() -> None:
+    grpc_port, web_port = _free_port(), _free_port()
+    view = LiveView(_cfg(mode="serve", grpc_port=grpc_port, web_port=web_port)).start()
+    try:
+        assert view.url.startswith(f"http://127.0.0.1:{web_port}/?url=rerun%2Bhttp")
+        with urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10) as r:
+            assert r.status == 200
+        assert view.push(LiveScalars(t_capture_ns=1, values={"x": 1.0}))
+        # A second appliance on the same ports fails clearly instead of silently.
+        with pytest.raises(LiveViewError, match=f"live.grpc_port {grpc_port} on 127.0.0.1"):
+            LiveView(_cfg(mode="serve", grpc_port=grpc_port, web_port=_free_port())).start()
+    finally:
+        view.close()
+    with socket.socket() as s:  # the server is gone with the view
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", grpc_port))
+
+
+def test_busy_web_port_is_reported_before_starting() -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        with pytest.raises(LiveViewError, match=f"live.web_port {port}"):
+            LiveView(_cfg(mode="serve", grpc_port=_free_port(), web_port=port)).start()
+
+
+def test_off_mode_does_nothing() -> None:
+    view = LiveView(_cfg(mode="off")).start()
+    assert not view.push(LiveScalars(t_capture_ns=1, values={}))
+    assert view.close()
+    assert view.stats().dropped == 0
+
+
+def test_display_conversions() -> None:
+    assert _to_u8(np.array([[0.0, 0.5, 1.5]])).tolist() == [[0, 128, 255]]
+    assert _to_u8(np.array([[True, False]])).tolist() == [[255, 0]]
+    assert _to_u8(np.array([[100, 300]], np.uint16)).tolist() == [[0, 255]]
+    flow = np.zeros((4, 4, 2), np.float32)
+    flow[0, 0] = (3.0, 0.0)
+    bgr = _flow_bgr(flow)
+    assert bgr.shape == (4, 4, 3) and bgr[1, 1].sum() == 0 and bgr[0, 0].max() == 255
+    disp = np.array([[1.0, np.nan], [2.0, 3.0]])
+    out = _disparity_bgr(disp)
+    assert out.shape == (2, 2, 3) and out[0, 1].sum() == 0

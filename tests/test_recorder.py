@@ -1,0 +1,235 @@
+"""MCAP recorder: content, metadata, rotation, quota, fsync, non-blocking drops."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.exceptions import EndOfFile
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+
+from appliance import schemas as S
+from appliance.config import Config, RecordingConfig, load_config
+from appliance.recorder import Recorder, closed_files, file_metadata, unfinished_files
+
+
+def _rc(tmp_path: Path, **kw: object) -> RecordingConfig:
+    base = {"dir": tmp_path / "rec", "fsync_s": 0.5, "quota_gb": None}
+    base.update(kw)
+    return dataclasses.replace(RecordingConfig(), **base)  # type: ignore[arg-type]
+
+
+def _frame(i: int, shape: tuple[int, int] = (240, 320)) -> bytes:
+    img = np.random.default_rng(i).integers(0, 65535, shape, dtype=np.uint16)
+    img[0, 0] = i
+    return S.raw_image(img, 1_700_000_000_000_000_000 + i, "cam_left")
+
+
+def _wind(i: int) -> bytes:
+    return S.encode_json(S.WIND_SAMPLE, {"t_mono_ns": i, "t_wall_ns": i, "sensor": "gill",
+                                         "u": 1.0, "v": 0.5, "w": -0.1, "valid": True})
+
+
+def _read_all(path: Path) -> tuple[list[tuple[str, bytes]], dict[str, dict[str, str]], object]:
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        msgs = [(ch.topic, m.data) for _, ch, m in reader.iter_messages()]
+        meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        summary = reader.get_summary()
+    return msgs, meta, summary
+
+
+def _count_messages_of_cut_file(path: Path) -> int:
+    """Messages in the complete records of a file that is still open (no footer yet)."""
+    n = 0
+    with open(path, "rb") as f:
+        try:
+            for record in StreamReader(f).records:
+                n += isinstance(record, Message)
+        except EndOfFile:
+            pass
+    return n
+
+
+def test_records_every_message_with_metadata(tmp_path: Path) -> None:
+    cfg = Config()
+    cal = "camera_matrix_left: [[400, 0, 160], [0, 400, 120], [0, 0, 1]]\n"
+    rec = Recorder(_rc(tmp_path), file_metadata(cfg, cal)).start()
+    for i in range(20):
+        assert rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), 10 + i)
+        assert rec.record("/cam/right/raw", S.RAW_IMAGE, _frame(100 + i), 10 + i)
+        assert rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), 10 + i, 5 + i)
+    assert rec.close()
+    (path,) = closed_files(tmp_path / "rec")
+    assert unfinished_files(tmp_path / "rec") == []
+    msgs, meta, summary = _read_all(path)
+    assert len(msgs) == 60
+    left = [d for t, d in msgs if t == "/cam/left/raw"]
+    assert [int(S.raw_image_to_array(d)[0][0, 0]) for d in left] == list(range(20))
+    assert {t for t, _ in msgs} == {"/cam/left/raw", "/cam/right/raw", "/wind/raw"}
+    # schemas registered once per file: two distinct schemas for three channels
+    assert len(summary.schemas) == 2 and len(summary.channels) == 3
+    assert summary.chunk_indexes[0].compression == "zstd"
+    assert meta["recording"]["software"] == "ogiflow"
+    assert {"host", "software_version", "start_time_utc"} <= set(meta["recording"])
+    assert load_config(None) == cfg
+    assert "rotate_mb" in meta["config"]["yaml"]
+    assert meta["calibration"]["yaml"] == cal
+    st = rec.stats()
+    assert (st.messages_written, st.messages_dropped, st.files_closed) == (60, 0, 1)
+
+
+def test_rotation_by_size_reregisters_channels(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path, rotate_mb=0.4, chunk_kb=64), {"config": {"yaml": "x"}}).start()
+    for i in range(40):
+        rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), i)
+        rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
+        time.sleep(0.002)
+    rec.close()
+    files = closed_files(tmp_path / "rec")
+    assert len(files) >= 3
+    total = 0
+    seen = []
+    for path in files:
+        msgs, meta, summary = _read_all(path)
+        assert meta["config"] == {"yaml": "x"} and "recording" in meta
+        assert {c.topic for c in summary.channels.values()} <= {"/cam/left/raw", "/wind/raw"}
+        assert path.stat().st_size < 0.4e6 + 2 * 64 * 1024 + 200_000
+        total += len(msgs)
+        seen += [int(S.raw_image_to_array(d)[0][0, 0]) for t, d in msgs if t == "/cam/left/raw"]
+    assert total == 80
+    assert seen == list(range(40))  # order kept across files
+
+
+def test_rotation_by_time(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path, rotate_s=0.25)).start()
+    for i in range(12):
+        rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
+        time.sleep(0.1)
+    rec.close()
+    files = closed_files(tmp_path / "rec")
+    assert len(files) >= 2
+    assert sum(len(_read_all(p)[0]) for p in files) == 12
+
+
+def test_quota_deletes_oldest_closed_files_only(tmp_path: Path) -> None:
+    d = tmp_path / "rec"
+    d.mkdir()
+    old = [d / f"ogiflow-20240101T00000{i}000Z-{i + 1:04d}.mcap" for i in range(5)]
+    for p in old:
+        p.write_bytes(b"\0" * 1_000_000)
+    foreign = d / "notes.mcap"
+    foreign.write_bytes(b"\0" * 3_000_000)
+    crashed = d / "ogiflow-20230101T000000000Z-0001.mcap.active"
+    crashed.write_bytes(b"\0" * 10)
+    rec = Recorder(_rc(tmp_path, quota_gb=0.0025, rotate_mb=1.0)).start()
+    # 5 MB of closed files + the new one > 2.5 MB: the three oldest go at start.
+    assert [p.exists() for p in old] == [False, False, False, True, True]
+    assert foreign.exists() and crashed.exists()
+    assert rec.current_file is not None and rec.current_file.exists()
+    rec.close()
+    assert rec.stats().files_deleted == 3
+    assert unfinished_files(d) == [crashed]
+
+
+def test_quota_applies_after_rotation(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path, quota_gb=0.0012, rotate_mb=0.5, chunk_kb=64)).start()
+    for i in range(60):
+        rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), i)
+        time.sleep(0.002)
+    rec.close()
+    st = rec.stats()
+    assert st.files_deleted >= 1
+    files = closed_files(tmp_path / "rec")
+    assert sum(p.stat().st_size for p in files[:-1]) <= 1.2e6
+
+
+def test_periodic_fsync_makes_chunks_readable_before_close(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path, fsync_s=0.1)).start()
+    for i in range(5):
+        rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
+    active = rec.current_file
+    assert active is not None and active.name.endswith(".mcap.active")
+    deadline = time.monotonic() + 10
+    n = 0
+    while n < 5 and time.monotonic() < deadline:
+        time.sleep(0.1)
+        n = _count_messages_of_cut_file(active)
+    rec.close()
+    assert n == 5
+
+
+def test_full_queue_drops_and_counts_without_blocking(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    rec = Recorder(_rc(tmp_path, queue_size=16))
+    gate = threading.Event()
+    real_write = rec._write
+
+    def stalled_write(item: object) -> None:  # a disk that hangs
+        gate.wait(30)
+        real_write(item)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(rec, "_write", stalled_write)
+    rec.start()
+    payload = _wind(0)
+    done = threading.Event()
+    accepted = []
+
+    def producer() -> None:
+        accepted.extend(rec.record("/wind/raw", S.WIND_SAMPLE, payload, i) for i in range(5000))
+        done.set()
+
+    t = threading.Thread(target=producer)
+    t.start()
+    t.join(20)  # bounded: the producer must finish while the writer is stuck
+    assert done.is_set(), "record() blocked on a stalled writer"
+    st = rec.stats()
+    assert st.messages_dropped == 5000 - sum(accepted)
+    assert 16 <= sum(accepted) <= 17  # the queue bound (+1 the stuck writer holds)
+    assert st.drops_by_topic == {"/wind/raw": st.messages_dropped}
+    gate.set()
+    rec.close()
+    assert rec.stats().messages_written == sum(accepted)
+
+
+def test_byte_bound_also_drops(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path), queue_bytes=1000)
+    rec._accepting = True  # not started: nothing drains, so the bound is exact
+    assert rec.record("/a", S.WIND_SAMPLE, b"x" * 600, 0)
+    assert not rec.record("/a", S.WIND_SAMPLE, b"x" * 600, 0)
+    assert rec.stats().messages_dropped == 1
+
+
+def test_default_queue_never_fills_at_stereo_rate(tmp_path: Path) -> None:
+    """2 x 30 Hz 320x240 uint16 frames paced in real time for 1 s: nothing dropped."""
+    rec = Recorder(_rc(tmp_path)).start()
+    frames = [_frame(i) for i in range(4)]
+    start = time.monotonic()
+    for i in range(30):
+        rec.record("/cam/left/raw", S.RAW_IMAGE, frames[i % 4], i)
+        rec.record("/cam/right/raw", S.RAW_IMAGE, frames[(i + 1) % 4], i)
+        time.sleep(max(0.0, start + (i + 1) / 30 - time.monotonic()))
+    rec.close()
+    st = rec.stats()
+    assert st.messages_dropped == 0 and st.messages_written == 60
+    assert st.queue_peak < RecordingConfig().queue_size // 10
+
+
+def test_record_after_close_is_counted(tmp_path: Path) -> None:
+    rec = Recorder(_rc(tmp_path)).start()
+    rec.close()
+    assert not rec.record("/wind/raw", S.WIND_SAMPLE, _wind(0), 0)
+    assert rec.stats().messages_dropped == 1
+
+
+def test_start_fails_clearly_on_unusable_dir(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OSError):
+        Recorder(_rc(tmp_path, dir=blocker / "rec")).start()
