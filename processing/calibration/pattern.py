@@ -172,7 +172,7 @@ def _blob_detector(image_shape: tuple[int, int], spec: PatternSpec) -> cv2.Simpl
 
 
 def _subpix_window(corners: np.ndarray, spec: PatternSpec) -> int:
-    """Half-size of the cornerSubPix window: ~40 % of the closest corner spacing, 2-6 px.
+    """Half-size of the cornerSubPix window: half the median corner spacing, 2-6 px.
 
     A window reaching the next corner pulls the estimate towards it; one smaller than the
     blur averages too little noise.
@@ -180,7 +180,7 @@ def _subpix_window(corners: np.ndarray, spec: PatternSpec) -> int:
     grid = corners.reshape(spec.rows, spec.cols, 2)
     d_row = np.median(np.linalg.norm(np.diff(grid, axis=1), axis=2))
     d_col = np.median(np.linalg.norm(np.diff(grid, axis=0), axis=2))
-    return int(np.clip(0.4 * min(d_row, d_col), 2, 6))
+    return int(np.clip(0.5 * min(d_row, d_col), 2, 6))
 
 
 def _find_chessboard(img: np.ndarray, spec: PatternSpec) -> np.ndarray | None:

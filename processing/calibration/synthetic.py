@@ -280,8 +280,8 @@ def random_target_poses(
         w, h = rig.image_size
         x = rng.uniform(-0.3, 0.3) * w / K[0, 0] * z
         y = rng.uniform(-0.3, 0.3) * h / K[1, 1] * z
-        # Aim between the cameras so the target tends to be seen by both.
-        t = np.array([x + rig.T[0] / 2 * -1.0 * -1.0, y, z]) - Rt @ centre
+        # Aim between the cameras (the right one sits at -R^T T) so both tend to see it.
+        t = np.array([x - rig.T[0] / 2.0, y, z]) - Rt @ centre
         rvec = cv2.Rodrigues(Rt)[0].ravel()
         pl, _ = cv2.projectPoints(hull, rvec, t, rig.K_left, rig.D_left)
         rr, tr = rig.right_pose(rvec, t)
@@ -289,3 +289,53 @@ def random_target_poses(
         if _inside(pl, rig.image_size, margin_px) and _inside(pr, rig.image_size, margin_px):
             poses.append((rvec, t))
     return poses
+
+
+def example_rig() -> SyntheticRig:
+    """A 320x240 OGI-like pair: f ~ 400 px (~43 deg field of view), strong barrel
+    distortion (k1 ~ -0.25), 0.25 m baseline, cameras turned ~2 deg towards each other."""
+    return SyntheticRig(
+        K_left=np.array([[400.0, 0.0, 162.3], [0.0, 401.0, 118.7], [0.0, 0.0, 1.0]]),
+        D_left=np.array([-0.25, 0.12, 0.001, -0.0005, 0.0]),
+        K_right=np.array([[405.0, 0.0, 158.1], [0.0, 405.5, 121.2], [0.0, 0.0, 1.0]]),
+        D_right=np.array([-0.22, 0.09, -0.0008, 0.0006, 0.0]),
+        R=cv2.Rodrigues(np.array([0.01, -0.03, 0.005]))[0],
+        T=np.array([-0.25, 0.004, 0.002]),
+        image_size=(320, 240),
+    )
+
+
+def render_stereo_views(
+    rig: SyntheticRig,
+    spec: PatternSpec,
+    poses: list[tuple[np.ndarray, np.ndarray]],
+    rng: np.random.Generator,
+    *,
+    supersample: int = 2,
+    inverted_every: int = 3,
+    uint8_every: int = 4,
+) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """Render every pose into both cameras with IR appearance (:func:`ir_counts`).
+
+    Every ``inverted_every``-th view shows the target with inverted polarity and every
+    ``uint8_every``-th view (offset by one) is 8-bit; the right camera has its own offset
+    and contrast (the cameras are not radiometrically matched). 0 disables either.
+
+    Returns
+    -------
+    list of (name, left, right)
+        ``name`` is ``"view%02d.png"``; images (H, W), uint16 or uint8.
+    """
+    rays_l = camera_rays(rig.K_left, rig.D_left, rig.image_size, supersample)
+    rays_r = camera_rays(rig.K_right, rig.D_right, rig.image_size, supersample)
+    views = []
+    for k, (rvec, tvec) in enumerate(poses):
+        inverted = inverted_every > 0 and k % inverted_every == 0
+        dtype = np.uint8 if uint8_every > 0 and k % uint8_every == 1 else np.uint16
+        left = ir_counts(render_pattern(spec, rays_l, rvec, tvec), rng,
+                         inverted=inverted, dtype=dtype)
+        rr, tr = rig.right_pose(rvec, tvec)
+        right = ir_counts(render_pattern(spec, rays_r, rr, tr), rng, offset=21000.0,
+                          contrast=500.0, inverted=inverted, dtype=dtype)
+        views.append((f"view{k:02d}.png", left, right))
+    return views
