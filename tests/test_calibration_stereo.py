@@ -212,12 +212,12 @@ def test_images_of_different_sizes_are_named() -> None:
 def test_pattern_never_found() -> None:
     rng = np.random.default_rng(0)
     views = [(f"v{i}.png", (20000 + rng.normal(0, 30, (240, 320))).astype(np.uint16),
-              (20000 + rng.normal(0, 30, (240, 320))).astype(np.uint16)) for i in range(3)]
-    with pytest.raises(PatternNotFoundError, match="found in none of the 6 images"):
+              (20000 + rng.normal(0, 30, (240, 320))).astype(np.uint16)) for i in range(2)]
+    with pytest.raises(PatternNotFoundError, match="found in none of the 4 images"):
         calibrate_stereo_images(CHESS, views)
 
 
 def test_wrong_pattern_size_is_never_found(chess_result) -> None:
     _poses, views, _ = chess_result
     with pytest.raises(PatternNotFoundError, match="--rows"):
-        calibrate_stereo_images(PatternSpec("chessboard", 5, 9, 0.05), views[:3])
+        calibrate_stereo_images(PatternSpec("chessboard", 5, 9, 0.05), views[:1])
