@@ -339,3 +339,48 @@ def render_stereo_views(
                           contrast=500.0, inverted=inverted, dtype=dtype)
         views.append((f"view{k:02d}.png", left, right))
     return views
+
+
+def write_demo_data(out_dir: str, views: int = 14, seed: int = 0) -> None:
+    """Write a rendered calibration data set laid out as the ``calibrate`` commands expect.
+
+    ``out_dir/left/viewNN.png`` and ``out_dir/right/viewNN.png``: chessboard of 6 x 9 inner
+    corners, 50 mm squares, seen through :func:`example_rig`. ``out_dir/blackbody/{left,
+    right}/tNN/``: five 16-bit frames per black-body temperature 20, 35, 50, 65, 80 degC
+    (left: gain 45000 counts per W m^-2 sr^-1, offset 12000 counts; right: 50000, 9000).
+    """
+    from pathlib import Path
+
+    from processing.calibration.radiometric import band_radiance, celsius_to_kelvin
+
+    root = Path(out_dir)
+    rig = example_rig()
+    spec = PatternSpec("chessboard", 6, 9, 0.05)
+    rng = np.random.default_rng(seed)
+    poses = random_target_poses(rig, spec, views, rng, distance_m=(1.0, 1.8))
+    for side in ("left", "right"):
+        (root / side).mkdir(parents=True, exist_ok=True)
+    for name, left, right in render_stereo_views(rig, spec, poses, rng):
+        cv2.imwrite(str(root / "left" / name), left)
+        cv2.imwrite(str(root / "right" / name), right)
+    h, w = rig.image_size[1], rig.image_size[0]
+    for side, gain, offset in (("left", 45000.0, 12000.0), ("right", 50000.0, 9000.0)):
+        for t_c in (20, 35, 50, 65, 80):
+            folder = root / "blackbody" / side / f"t{t_c}"
+            folder.mkdir(parents=True, exist_ok=True)
+            level = offset + gain * float(band_radiance(celsius_to_kelvin(t_c)))
+            for k in range(5):
+                frame = np.clip(np.rint(level + rng.normal(0.0, 15.0, (h, w))), 0, 65535)
+                cv2.imwrite(str(folder / f"frame{k}.png"), frame.astype(np.uint16))
+
+
+if __name__ == "__main__":
+    import sys
+
+    if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
+        print("usage: python -m processing.calibration.synthetic OUT_DIR\n"
+              "writes rendered stereo views (OUT_DIR/left, OUT_DIR/right) and black-body frames "
+              "(OUT_DIR/blackbody) for trying the calibrate commands", file=sys.stderr)
+        raise SystemExit(2)
+    write_demo_data(sys.argv[1])
+    print(f"wrote {sys.argv[1]}/left, {sys.argv[1]}/right and {sys.argv[1]}/blackbody")
