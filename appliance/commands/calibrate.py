@@ -141,6 +141,8 @@ def run_stereo(args: argparse.Namespace) -> int:
                              "DIR/right)")
     if args.min_views < 3:
         raise ValueError(f"--min-views must be >= 3, got {args.min_views}")
+    # Read an existing --out first: a broken file is reported before minutes of work.
+    radiometric = load_radiometric(args.out) if args.out.exists() else None
     pairs = pair_image_files(args.images / "left", args.images / "right")
     views = [(name, read_image(lp), read_image(rp)) for name, lp, rp in pairs]
     print(f"{len(views)} image pairs in {args.images}; target: {args.pattern} "
@@ -170,11 +172,9 @@ def run_stereo(args: argparse.Namespace) -> int:
     print(f"T (m): [{tx:.5f}, {ty:.5f}, {tz:.5f}]; baseline |T| = {norm_t:.5f} m")
     print(f"rectified: s = {calib.s_px:.3f} px, principal point = ({calib.cx_px:.2f}, "
           f"{calib.cy_px:.2f}) px, b = {calib.b_m:.5f} m")
-    if args.out.exists():
-        radiometric = load_radiometric(args.out)
-        if radiometric is not None:
-            calib = dataclasses.replace(calib, radiometric=radiometric)
-            print(f"kept the radiometric section already in {args.out}")
+    if radiometric is not None:
+        calib = dataclasses.replace(calib, radiometric=radiometric)
+        print(f"kept the radiometric section already in {args.out}")
     save_calibration(args.out, calib)
     print(f"wrote {args.out}")
     return cli.EXIT_OK
