@@ -147,8 +147,13 @@ def run_stereo(args: argparse.Namespace) -> int:
     views = [(name, read_image(lp), read_image(rp)) for name, lp, rp in pairs]
     print(f"{len(views)} image pairs in {args.images}; target: {args.pattern} "
           f"{args.rows} x {args.cols}, spacing {args.spacing:g} mm")
+
+    def report(name: str, left: str | None, right: str | None) -> None:
+        print(f"  {name}: left {left or 'NOT FOUND'}, right {right or 'NOT FOUND'}", flush=True)
+
+    print("detecting the target (contrast variant that showed it):", flush=True)
     result = calibrate_stereo_images(
-        spec, views, outlier_k=args.outlier_k, outlier_floor_px=args.outlier_floor,
+        spec, views, on_view=report, outlier_k=args.outlier_k, outlier_floor_px=args.outlier_floor,
         min_views=args.min_views, fix_k3=not args.free_k3, alpha=args.alpha,
         max_rms_px=args.max_rms)
     calib = result.calibration

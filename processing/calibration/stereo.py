@@ -15,7 +15,7 @@ Steps (Zhang's method as implemented by OpenCV):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import cv2
@@ -275,6 +275,8 @@ def _too_few_message(n: int, min_views: int, not_found: Sequence[str]) -> str:
 def calibrate_stereo_images(
     spec: PatternSpec,
     views: Sequence[tuple[str, np.ndarray, np.ndarray]],
+    *,
+    on_view: Callable[[str, str | None, str | None], None] | None = None,
     **kwargs: object,
 ) -> StereoCalibrationResult:
     """Detect the target in every image pair and calibrate (all steps of the module doc).
@@ -285,6 +287,11 @@ def calibrate_stereo_images(
         Target geometry.
     views : sequence of (name, left, right)
         Image pairs, each image shape (H, W), uint8/uint16/float; all of one size.
+    on_view : callable, optional
+        Called after each pair's detection with (name, left variant, right variant); a
+        variant names the contrast variant that showed the target (e.g.
+        ``"stretch-inverted"``) or is None when the target was not found. For progress
+        reports: detection takes up to ~1 s per image when the target is absent.
     **kwargs
         Passed to :func:`calibrate_stereo_points`.
 
@@ -318,6 +325,8 @@ def calibrate_stereo_images(
         dl = detect_pattern(left, spec)
         dr = detect_pattern(right, spec)
         seen_any |= dl is not None or dr is not None
+        if on_view is not None:
+            on_view(name, dl[1] if dl else None, dr[1] if dr else None)
         if dl is None or dr is None:
             sides = [s for s, d in (("left", dl), ("right", dr)) if d is None]
             not_found.append(f"{name} ({' and '.join(sides)})")
