@@ -68,9 +68,11 @@ def test_chessboard_recovers_focal_length_baseline(chess_result) -> None:
     assert np.degrees(np.linalg.norm(cv2.Rodrigues(dR)[0])) < 0.2
 
 
-def test_circle_grid_recovers_focal_length_baseline() -> None:
-    _poses, views = _views(CIRCLES, 14, seed=1)
-    result = calibrate_stereo_images(CIRCLES, views)
+@pytest.mark.parametrize("spec", [CIRCLES, PatternSpec("acircles", 7, 4, 0.05)],
+                         ids=["circles", "acircles"])
+def test_circle_grids_recover_focal_length_baseline(spec: PatternSpec) -> None:
+    _poses, views = _views(spec, 14, seed=1)
+    result = calibrate_stereo_images(spec, views)
     _check_acceptance(result.calibration)
 
 
