@@ -77,6 +77,7 @@ def _write(path: Path, data: dict) -> Path:
     (lambda d: d.update(b_m=1.0), "'b_m' = 1.0 disagrees"),
     (lambda d: d.update(rms_px=-1), "'rms_px'"),
     (lambda d: d.update(baseline=0.3), "unknown key"),
+    (lambda d: d.update(meta=[1, 2]), "'meta'"),
     (lambda d: d.update(format="opencv"), "'format'"),
     (lambda d: d.update(version=99), "'version'"),
     (lambda d: d.update(radiometric={"left": {"gain": 1.0}}), "'radiometric.left.offset'"),

@@ -405,13 +405,16 @@ def _parse_calibration(data: dict[str, Any], path: Path) -> StereoCalibration:
     R = arrays["R"]
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
         raise CalibrationFileError(f"{path}: key 'R' is not a rotation matrix")
+    meta = data.get("meta") or {}
+    if not isinstance(meta, dict):
+        raise CalibrationFileError(f"{path}: key 'meta' must be a mapping")
     rms = _number(data, "rms_px", path)
     if rms < 0:
         raise CalibrationFileError(f"{path}: key 'rms_px' must be >= 0, got {rms}")
     calib = StereoCalibration(
         image_size=(int(size[0]), int(size[1])), rms_px=rms,
         radiometric=_parse_radiometric(data, path),
-        meta=dict(data.get("meta") or {}), **arrays,
+        meta=dict(meta), **arrays,
     )
     if calib.s_px <= 0:
         raise CalibrationFileError(f"{path}: key 'P1' gives a camera constant s <= 0")
