@@ -130,3 +130,24 @@ def test_calibrate_radiometric_folder_count_mismatch(tmp_path: Path,
     assert code == cli.EXIT_USAGE
     assert "2 subfolder(s) (t30, t60) but 3 temperatures" in capsys.readouterr().err
     assert not (tmp_path / "c.yaml").exists()
+
+
+def test_radiometric_first_then_stereo_keeps_curves(image_dir: Path, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from processing.calibration import CalibrationFileError, load_radiometric
+
+    rng = np.random.default_rng(4)
+    _write_blackbody(tmp_path / "L", [20.0, 60.0], 45000.0, 12000.0, rng)
+    _write_blackbody(tmp_path / "R", [20.0, 60.0], 50000.0, 9000.0, rng)
+    out = tmp_path / "new.yaml"
+    assert cli.main(["calibrate", "radiometric", "--left", str(tmp_path / "L"), "--right",
+                     str(tmp_path / "R"), "--temperatures", "20,60", "--out", str(out)]) == 0
+    rad = load_radiometric(out)
+    assert rad is not None and rad.right is not None
+    with pytest.raises(CalibrationFileError, match="only a radiometric"):
+        load_calibration(out)
+    assert cli.main(["calibrate", "stereo", "--images", str(image_dir), "--pattern",
+                     "chessboard", "--rows", "6", "--cols", "9", "--spacing", "50",
+                     "--out", str(out)]) == 0
+    assert "kept the radiometric section" in capsys.readouterr().out
+    assert load_calibration(out).radiometric == rad
