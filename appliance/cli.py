@@ -23,6 +23,7 @@ from appliance import __version__
 COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.eval_flow",
     "appliance.commands.recover",
+    "appliance.commands.calibrate",
 )
 
 EXIT_OK = 0
