@@ -142,7 +142,8 @@ def estimate_shift(
         mov = cv2.GaussianBlur(mov, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
 
     window = cv2.createHanningWindow((w, h), cv2.CV_32F)
-    (dx, dy), _ = cv2.phaseCorrelate(ref, mov, window)
+    # Copies: cv2.phaseCorrelate (OpenCV 5.0) multiplies its inputs by the window in place.
+    (dx, dy), _ = cv2.phaseCorrelate(ref.copy(), mov.copy(), window)
 
     # Inverse-compositional style: the reference gradient is fixed, so the 2x2 normal
     # matrix changes only through the robust weights.
