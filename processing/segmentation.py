@@ -133,6 +133,22 @@ def dirac(phi: np.ndarray, eps: float = 1.0) -> np.ndarray:
     return (eps / (np.pi * (eps * eps + phi * phi))).astype(np.float32)
 
 
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _atan(z: float) -> float:
+    """arctan with |error| <= 1.2e-5 rad (Abramowitz & Stegun 4.4.47), branch-light.
+
+    libm's atan is a scalar call that dominated the segmentation time; this polynomial
+    vectorises. The smoothed Heaviside changes by < 4e-6, far below anything that matters.
+    """
+    a = abs(z)
+    big = a > 1.0
+    t = 1.0 / a if big else a
+    t2 = t * t
+    p = t * (0.9998660 + t2 * (-0.3302995 + t2 * (0.1801410 + t2 * (-0.0851330 + t2 * 0.0208351))))
+    r = 0.5 * np.pi - p if big else p
+    return r if z >= 0 else -r
+
+
 @numba.njit(cache=True, fastmath=True)
 def _region_moments(
     features: np.ndarray, phi: np.ndarray, eps: float, stride: int
@@ -143,23 +159,73 @@ def _region_moments(
     -------
     gas, bg : ndarray, shape (3, 3), float64
         Rows per feature: (sum of weights, weighted sum, weighted sum of squares), taken
-        over every ``stride``-th pixel in each direction.
+        over every ``stride``-th pixel in each direction. The background sums are the
+        totals minus the gas sums.
     """
     nf, h, w = features.shape
+    s0 = np.float32(0.0)
+    s1 = np.zeros(3, np.float32)
+    s2 = np.zeros(3, np.float32)
+    t1 = np.zeros(3, np.float32)
+    t2 = np.zeros(3, np.float32)
+    n = 0
+    inv_pi = np.float32(1.0 / np.pi)
+    inv_eps = np.float32(1.0 / eps)
+    for i in range(0, h, stride):
+        a0 = np.float32(0.0)
+        a1 = np.float32(0.0)
+        a2 = np.float32(0.0)
+        b0 = np.float32(0.0)
+        b1 = np.float32(0.0)
+        b2 = np.float32(0.0)
+        c0 = np.float32(0.0)
+        c1 = np.float32(0.0)
+        c2 = np.float32(0.0)
+        d0 = np.float32(0.0)
+        d1 = np.float32(0.0)
+        d2 = np.float32(0.0)
+        hs = np.float32(0.0)
+        for j in range(0, w, stride):
+            hv = np.float32(0.5) + np.float32(_atan(phi[i, j] * inv_eps)) * inv_pi
+            x0 = features[0, i, j]
+            x1 = features[1, i, j]
+            x2 = features[2, i, j]
+            hs += hv
+            a0 += hv * x0
+            a1 += hv * x1
+            a2 += hv * x2
+            b0 += hv * x0 * x0
+            b1 += hv * x1 * x1
+            b2 += hv * x2 * x2
+            c0 += x0
+            c1 += x1
+            c2 += x2
+            d0 += x0 * x0
+            d1 += x1 * x1
+            d2 += x2 * x2
+            n += 1
+        s0 += hs
+        s1[0] += a0
+        s1[1] += a1
+        s1[2] += a2
+        s2[0] += b0
+        s2[1] += b1
+        s2[2] += b2
+        t1[0] += c0
+        t1[1] += c1
+        t1[2] += c2
+        t2[0] += d0
+        t2[1] += d1
+        t2[2] += d2
     gas = np.zeros((nf, 3))
     bg = np.zeros((nf, 3))
-    inv_pi = 1.0 / np.pi
-    for i in range(0, h, stride):
-        for j in range(0, w, stride):
-            hv = 0.5 + np.arctan(phi[i, j] / eps) * inv_pi
-            for k in range(nf):
-                x = features[k, i, j]
-                gas[k, 0] += hv
-                gas[k, 1] += hv * x
-                gas[k, 2] += hv * x * x
-                bg[k, 0] += 1.0 - hv
-                bg[k, 1] += (1.0 - hv) * x
-                bg[k, 2] += (1.0 - hv) * x * x
+    for k in range(nf):
+        gas[k, 0] = s0
+        gas[k, 1] = s1[k]
+        gas[k, 2] = s2[k]
+        bg[k, 0] = n - s0
+        bg[k, 1] = t1[k] - s1[k]
+        bg[k, 2] = t2[k] - s2[k]
     return gas, bg
 
 
