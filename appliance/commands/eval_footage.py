@@ -251,8 +251,13 @@ def run(args: argparse.Namespace) -> int:
                     figure_candidates.append((key, n, (imgs[0], pre.diff0, flow, seg.mask)))
                     figure_candidates = [max(figure_candidates, key=lambda c: c[0])]
         fractions = [e["gas_fraction"] for e in per_frame]
+        per_run = {
+            f"{a}-{b}": _stats([e["gas_fraction"] for e in per_frame if a <= e["frame"] <= b])
+            for a, b in runs
+        }
         report[name] = {
             "runs": [list(r) for r in runs],
+            "gas_fraction_per_run": per_run,
             "triples_used": len(per_frame),
             "frames_in_set": len(numbers),
             "gas_fraction": _stats(fractions),
@@ -284,6 +289,13 @@ def run(args: argparse.Namespace) -> int:
                 f"max {100 * s['max']:.2f} %; frames with gas {rep['frames_with_gas']}"
                 f"/{rep['triples_used']}"
             )
+            if len(rep["runs"]) > 1:
+                for run_name, rs in rep["gas_fraction_per_run"].items():
+                    if rs["mean"] is not None:
+                        print(
+                            f"    run {run_name}: mean {100 * rs['mean']:.2f} %, "
+                            f"min {100 * rs['min']:.2f} %, max {100 * rs['max']:.2f} %"
+                        )
     stage_ms = {k: (statistics.median(v) if v else None) for k, v in timings.items()}
     print(
         "\nmedian ms per triple: "
