@@ -46,10 +46,13 @@ from processing.validation import as_float_image, check_positive
 #: Smallest accepted image side in pixels.
 MIN_SEGMENT_SIZE = 8
 
-#: Variance floors (squared) of the Gaussian region models, per feature: I_diff in [0, 1]
-#: and u, v in px/frame. Without them a region of exactly constant value (zero flow in a
-#: static background) gets an infinitely narrow density and an infinite log-likelihood.
-VAR_FLOOR = np.array([1e-6, 1e-4, 1e-4])
+#: Variance floors of the Gaussian region models, per feature: I_diff in [0, 1] (standard
+#: deviation >= 0.01) and u, v in px/frame (>= 0.1 px, about the accuracy of the flow).
+#: Without them a region of nearly constant value (zero flow in a static background) gets
+#: an arbitrarily narrow density, and flow differences far below what the flow solver can
+#: resolve would decide the boundary (seen on real footage: noise-only frames split along
+#: smooth 0.05 px flow gradients).
+VAR_FLOOR = np.array([1e-4, 1e-2, 1e-2])
 
 
 @numba.njit(cache=True, fastmath=True)
