@@ -326,3 +326,59 @@ def preprocess_camera(
     diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
     diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
     return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12))
+
+
+def preprocess_stereo(
+    left: Sequence[np.ndarray],
+    right: Sequence[np.ndarray],
+    *,
+    scale: float,
+    curves: tuple[Mapping[str, float] | None, Mapping[str, float] | None] = (None, None),
+    maps: tuple[tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray, np.ndarray] | None] = (
+        None,
+        None,
+    ),
+    register: bool = True,
+    denoise_lambda: float = 2.0,
+    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+) -> tuple[PreprocessedTriple, PreprocessedTriple]:
+    """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
+
+    The single ``scale`` argument is the point: E1 and E4 (Eq. 3a, 3d) compare left and
+    right intensities, so both cameras must be normalised by the same affine map.
+
+    Parameters
+    ----------
+    left, right : sequence of 3 ndarrays, shape (H, W)
+        Raw frames at t0, t1, t2 of the left and right camera.
+    scale : float
+        Shared normalisation scale in radiance units.
+    curves, maps, shift01 : pairs (left, right)
+        Per-camera characteristic curve, rectification maps and known t0 -> t1 shift.
+    register, denoise_lambda
+        As in :func:`preprocess_camera`, the same for both cameras.
+
+    Returns
+    -------
+    (PreprocessedTriple, PreprocessedTriple)
+        Left and right.
+
+    Raises
+    ------
+    ValueError
+        As :func:`preprocess_camera`, or when the two cameras' results differ in shape.
+    """
+    out = tuple(
+        preprocess_camera(
+            frames,
+            scale=scale,
+            curve=curves[k],
+            maps=maps[k],
+            register=register,
+            denoise_lambda=denoise_lambda,
+            shift01=shift01[k],
+        )
+        for k, frames in enumerate((left, right))
+    )
+    check_same_shape(out[0].diff0, out[1].diff0, "left differential image", "right")
+    return out[0], out[1]

@@ -11,6 +11,7 @@ from processing.preprocess import (
     check_curve,
     normalise_difference,
     preprocess_camera,
+    preprocess_stereo,
     radiometric_correction,
 )
 from processing.registration import warp_translation
@@ -162,3 +163,32 @@ def test_bad_frames_raise() -> None:
         radiometric_correction(np.full((3, 4), np.nan), None)
     with pytest.raises(ValueError, match="scale"):
         normalise_difference(np.zeros((4, 4), np.float32), -1.0)
+
+
+def test_preprocess_stereo_shares_the_scale_across_cameras() -> None:
+    """Two cameras with different characteristic curves seeing the same radiance."""
+    rng = np.random.default_rng(6)
+    background = _scene(seed=4)
+    gas = [np.zeros_like(background) for _ in range(3)]
+    for t in range(3):
+        gas[t][30:60, 40 + 3 * t : 90 + 3 * t] = 0.4 * rng.random((30, 50), dtype=np.float32)
+    radiance = [background + g for g in gas]
+    left_curve = {"gain": 700.0, "offset": 1000.0}
+    right_curve = {"gain": 950.0, "offset": 400.0, "quadratic": 3.0}
+
+    def counts(curve: dict[str, float]) -> list[np.ndarray]:
+        q = curve.get("quadratic", 0.0)
+        return [q * r**2 + curve["gain"] * r + curve["offset"] for r in radiance]
+
+    left, right = preprocess_stereo(
+        counts(left_curve),
+        counts(right_curve),
+        scale=0.5,
+        curves=(left_curve, right_curve),
+        register=False,
+        denoise_lambda=1.0,
+    )
+    np.testing.assert_allclose(left.diff0, right.diff0, atol=2e-4)
+    np.testing.assert_allclose(left.diff1, right.diff1, atol=2e-4)
+    with pytest.raises(ValueError, match="differ in shape"):
+        preprocess_stereo(radiance, [r[:, :-1] for r in radiance], scale=0.5, register=False)
