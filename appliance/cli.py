@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.eval_flow",
     "appliance.commands.recover",
     "appliance.commands.calibrate",
+    "appliance.commands.eval_footage",
 )
 
 EXIT_OK = 0

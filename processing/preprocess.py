@@ -1,0 +1,384 @@
+"""Pre-processing of raw OGI frames into differential images (paper Sec. 4.1, Eq. 2).
+
+Per camera and per triple of consecutive frames (t0, t1, t2), in this order:
+
+1. radiometric correction: raw counts -> in-band radiance by the camera's characteristic
+   curve (:func:`radiometric_correction`), so that both cameras speak the same unit;
+2. rectification with the stereo calibration's maps (:func:`apply_rectification`);
+3. jitter removal: t1 and t2 are registered onto t0 (:mod:`processing.registration`), so both
+   differential images of the triple live on the t0 pixel grid;
+4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units;
+5. Sobolev denoising of each difference (:mod:`processing.denoise`);
+6. normalisation to [0, 1] with one fixed scale shared by both cameras
+   (:func:`normalise_difference`).
+
+Why one shared, slowly varying scale and not per-frame min-max: the joint disparity energy
+compares intensities across cameras (E1: left vs right at t0, E4: left vs right at t1) and
+across frames (E2/E3: t0 vs t1). A per-frame min-max stretch divides each differential image
+by its own extreme values - one hot pixel, a bird or a gust in one camera changes the stretch
+of that image only, and the same gas structure then has different intensities in the left and
+right image and in consecutive frames, violating exactly the constancy assumptions E1-E4
+rest on. It also amplifies pure noise to full contrast in frames without gas. With a fixed
+scale s (radiance units) the map I -> 0.5 + D / (2 s) is one affine function applied to every
+image: 0.5 means "no change", and equal radiance changes give equal normalised values in
+both cameras and in every frame. s is a setting (e.g. the expected gas contrast: a radiance
+change of s maps to 1.0); :class:`DiffScaleTracker` offers an online robust estimate with slow
+exponential forgetting, pooled over both cameras, whose value is held fixed within a triple.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from processing.denoise import sobolev_denoise
+from processing.registration import estimate_shift, warp_translation
+from processing.validation import as_float_image, check_positive, check_same_shape
+
+#: Keys of a characteristic curve dict: counts = quadratic * L^2 + gain * L + offset.
+CURVE_KEYS = frozenset({"gain", "offset", "quadratic"})
+
+
+def check_curve(curve: Mapping[str, float] | None) -> dict[str, float] | None:
+    """Validate a characteristic curve dict and return it with floats (None stays None).
+
+    Parameters
+    ----------
+    curve : mapping or None
+        ``{"gain": g, "offset": o}`` with optional ``"quadratic": q``, describing
+        counts = q L^2 + g L + o for in-band radiance L. ``gain`` must be > 0.
+
+    Raises
+    ------
+    ValueError
+        Unknown or missing keys, non-finite values, or gain <= 0.
+    """
+    if curve is None:
+        return None
+    if not isinstance(curve, Mapping):
+        raise ValueError(f"characteristic curve must be a dict, got {type(curve).__name__}")
+    unknown = set(curve) - CURVE_KEYS
+    if unknown:
+        raise ValueError(f"characteristic curve has unknown keys {sorted(unknown)}")
+    missing = {"gain", "offset"} - set(curve)
+    if missing:
+        raise ValueError(f"characteristic curve lacks {sorted(missing)}")
+    out: dict[str, float] = {}
+    for key, value in curve.items():
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"characteristic curve {key!r} must be a number, got {value!r}"
+            ) from None
+        if not np.isfinite(v):
+            raise ValueError(f"characteristic curve {key!r} must be finite, got {value!r}")
+        out[key] = v
+    if out["gain"] <= 0:
+        raise ValueError(f"characteristic curve gain must be > 0, got {out['gain']!r}")
+    return out
+
+
+def radiometric_correction(counts: np.ndarray, curve: Mapping[str, float] | None) -> np.ndarray:
+    """Convert raw detector counts to in-band radiance by the characteristic curve.
+
+    Parameters
+    ----------
+    counts : ndarray, shape (H, W), uint8/uint16/float
+        Raw frame.
+    curve : mapping or None
+        Characteristic curve (see :func:`check_curve`): counts = q L^2 + g L + o. ``None``
+        means identity: the result is the counts as float32 (unit "counts").
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Radiance L in the unit of the calibration. For the linear curve
+        L = (counts - o) / g. With q != 0 the root continuous with the linear case,
+        L = 2 (c - o) / (g + sqrt(g^2 + 4 q (c - o))), is used; counts beyond the curve's
+        extremum (negative discriminant) are clipped to the extremum.
+
+    Raises
+    ------
+    ValueError
+        Not 2-D, not numeric, NaN/inf, or a bad curve.
+    """
+    if not isinstance(counts, np.ndarray) or counts.ndim != 2:
+        raise ValueError(
+            f"counts must be a 2-D array, got {getattr(counts, 'shape', type(counts).__name__)}"
+        )
+    if not (np.issubdtype(counts.dtype, np.integer) or np.issubdtype(counts.dtype, np.floating)):
+        raise ValueError(f"counts must be integer or float, got {counts.dtype}")
+    c = counts.astype(np.float32)
+    if not np.all(np.isfinite(c)):
+        raise ValueError("counts contain NaN or infinite values")
+    params = check_curve(curve)
+    if params is None:
+        return c
+    g, o = params["gain"], params["offset"]
+    q = params.get("quadratic", 0.0)
+    if q == 0.0:
+        return ((c - o) / g).astype(np.float32, copy=False)
+    x = c - o
+    disc = np.maximum(g * g + 4.0 * q * x, 0.0)
+    return (2.0 * x / (g + np.sqrt(disc))).astype(np.float32, copy=False)
+
+
+def apply_rectification(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    """Resample an image with rectification maps (``cv2.remap``, bilinear, replicated border).
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), float
+        Radiometrically corrected frame.
+    map_x, map_y : ndarray, shape (H', W'), float32
+        Source x and y coordinates per output pixel, as produced by
+        ``cv2.initUndistortRectifyMap(..., cv2.CV_32FC1)`` from the stereo calibration.
+
+    Returns
+    -------
+    ndarray, shape (H', W'), float32
+        The rectified frame.
+    """
+    img = as_float_image(image, "image")
+    if not isinstance(map_x, np.ndarray) or not isinstance(map_y, np.ndarray):
+        raise ValueError("map_x and map_y must be numpy arrays")
+    check_same_shape(map_x, map_y, "map_x", "map_y")
+    if map_x.ndim != 2:
+        raise ValueError(f"rectification maps must be 2-D, got shape {map_x.shape}")
+    return cv2.remap(
+        img,
+        np.ascontiguousarray(map_x, dtype=np.float32),
+        np.ascontiguousarray(map_y, dtype=np.float32),
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    )
+
+
+def normalise_difference(diff: np.ndarray, scale: float) -> np.ndarray:
+    """Map a radiance difference to [0, 1] with the shared fixed scale.
+
+    Parameters
+    ----------
+    diff : ndarray, shape (H, W), float
+        Differential image D = I(t) - I(t+1) (Eq. 2) in radiance units.
+    scale : float
+        Radiance difference s > 0 that maps to 1.0 (and -s to 0.0). The same value must be
+        used for both cameras and both differential images of a triple (module docstring).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        clip(0.5 + D / (2 s), 0, 1): 0.5 is "no change".
+    """
+    d = as_float_image(diff, "diff")
+    s = check_positive(scale, "scale")
+    out = d * np.float32(0.5 / s)
+    out += np.float32(0.5)
+    np.clip(out, 0.0, 1.0, out=out)
+    return out
+
+
+class DiffScaleTracker:
+    """Online robust estimate of the normalisation scale, shared by both cameras.
+
+    After each triple, :meth:`update` takes the raw (radiance) differential images of BOTH
+    cameras, pools them, and moves the scale towards ``headroom`` times their ``quantile``
+    of |D| with exponential forgetting: ``s <- (1 - forgetting) s + forgetting * target``.
+    The caller uses :attr:`scale` unchanged for all four differential images of a triple and
+    updates afterwards, so within a triple E1-E4 see one affine map, and across triples the
+    scale drifts by at most ``forgetting`` (relative) per frame.
+
+    Parameters
+    ----------
+    initial : float
+        Starting scale (radiance units), e.g. the expected gas contrast.
+    forgetting : float
+        Weight of the newest estimate, in (0, 1]; 0.01 at 30 Hz ~ 3 s memory.
+    quantile : float
+        Quantile of |D| (in (0, 1)) that the scale follows.
+    headroom : float
+        Multiplier on that quantile (>= 1 keeps most values unclipped).
+    """
+
+    def __init__(
+        self,
+        initial: float,
+        *,
+        forgetting: float = 0.01,
+        quantile: float = 0.999,
+        headroom: float = 1.0,
+    ) -> None:
+        self._scale = check_positive(initial, "initial")
+        self.forgetting = check_positive(forgetting, "forgetting")
+        if self.forgetting > 1.0:
+            raise ValueError(f"forgetting must be in (0, 1], got {forgetting!r}")
+        if not 0.0 < quantile < 1.0:
+            raise ValueError(f"quantile must be in (0, 1), got {quantile!r}")
+        self.quantile = float(quantile)
+        self.headroom = check_positive(headroom, "headroom")
+
+    @property
+    def scale(self) -> float:
+        """Current scale in radiance units (use it for both cameras)."""
+        return self._scale
+
+    def update(self, *diffs: np.ndarray) -> float:
+        """Pool the raw differential images of both cameras and update the scale."""
+        if not diffs:
+            raise ValueError("update needs at least one differential image")
+        # Every 2nd pixel in each direction is plenty for a quantile and 4x cheaper.
+        pooled = np.concatenate(
+            [np.abs(as_float_image(d, "diff")[::2, ::2]).ravel() for d in diffs]
+        )
+        target = self.headroom * float(np.quantile(pooled, self.quantile))
+        if target > 0.0:
+            self._scale = (1.0 - self.forgetting) * self._scale + self.forgetting * target
+        return self._scale
+
+
+@dataclass(frozen=True)
+class PreprocessedTriple:
+    """Normalised differential images of one camera for one triple (t0, t1, t2).
+
+    Attributes
+    ----------
+    diff0, diff1 : ndarray, shape (H, W), float32 in [0, 1]
+        Normalised I_diff(t0) = I(t0) - I(t1) and I_diff(t1) = I(t1) - I(t2) (Eq. 2), both on
+        the pixel grid of frame t0, denoised.
+    raw0, raw1 : ndarray, shape (H, W), float32
+        The same differences in radiance units before denoising and normalisation (for a
+        :class:`DiffScaleTracker`).
+    shifts : ((float, float), (float, float))
+        Jitter (dx, dy) in px of t1 relative to t0 and of t2 relative to t1 (zeros when
+        registration is off). Pass ``shifts[1]`` as ``shift01`` of the next triple.
+    """
+
+    diff0: np.ndarray
+    diff1: np.ndarray
+    raw0: np.ndarray
+    raw1: np.ndarray
+    shifts: tuple[tuple[float, float], tuple[float, float]]
+
+
+def preprocess_camera(
+    frames: Sequence[np.ndarray],
+    *,
+    scale: float,
+    curve: Mapping[str, float] | None = None,
+    maps: tuple[np.ndarray, np.ndarray] | None = None,
+    register: bool = True,
+    denoise_lambda: float = 2.0,
+    shift01: tuple[float, float] | None = None,
+) -> PreprocessedTriple:
+    """Steps 1-6 of the module docstring for one camera and three consecutive frames.
+
+    Parameters
+    ----------
+    frames : sequence of 3 ndarrays, shape (H, W), uint8/uint16/float
+        Raw frames at t0, t1, t2 of one camera.
+    scale : float
+        Shared normalisation scale in radiance units (:func:`normalise_difference`).
+    curve : mapping or None
+        The camera's characteristic curve (:func:`radiometric_correction`).
+    maps : (map_x, map_y) or None
+        The camera's rectification maps (:func:`apply_rectification`); None skips it.
+    register : bool
+        Remove jitter by registering t1 and t2 onto t0.
+    denoise_lambda : float
+        Sobolev prior weight in px^2 (:func:`processing.denoise.sobolev_denoise`); 0 = off.
+    shift01 : (float, float) or None
+        Known shift of t1 relative to t0 (e.g. the t1 -> t2 shift of the previous triple,
+        shifts compose additively); saves one registration.
+
+    Returns
+    -------
+    PreprocessedTriple
+
+    Raises
+    ------
+    ValueError
+        Not exactly three frames, shapes differ, bad frame, curve, maps or parameters.
+    """
+    if len(frames) != 3:
+        raise ValueError(f"need exactly 3 consecutive frames (t0, t1, t2), got {len(frames)}")
+    scale = check_positive(scale, "scale")
+    imgs = [radiometric_correction(f, curve) for f in frames]
+    check_same_shape(imgs[0], imgs[1], "frame t0", "frame t1")
+    check_same_shape(imgs[0], imgs[2], "frame t0", "frame t2")
+    if maps is not None:
+        if len(maps) != 2:
+            raise ValueError("maps must be a pair (map_x, map_y)")
+        imgs = [apply_rectification(im, maps[0], maps[1]) for im in imgs]
+    s01: tuple[float, float] = (0.0, 0.0)
+    s12: tuple[float, float] = (0.0, 0.0)
+    if register:
+        s01 = shift01 if shift01 is not None else estimate_shift(imgs[0], imgs[1])
+        s12 = estimate_shift(imgs[1], imgs[2])
+        s02 = (s01[0] + s12[0], s01[1] + s12[1])
+        imgs[1] = warp_translation(imgs[1], s01)
+        imgs[2] = warp_translation(imgs[2], s02)
+    raw0 = imgs[0] - imgs[1]
+    raw1 = imgs[1] - imgs[2]
+    diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
+    diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
+    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12))
+
+
+def preprocess_stereo(
+    left: Sequence[np.ndarray],
+    right: Sequence[np.ndarray],
+    *,
+    scale: float,
+    curves: tuple[Mapping[str, float] | None, Mapping[str, float] | None] = (None, None),
+    maps: tuple[tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray, np.ndarray] | None] = (
+        None,
+        None,
+    ),
+    register: bool = True,
+    denoise_lambda: float = 2.0,
+    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+) -> tuple[PreprocessedTriple, PreprocessedTriple]:
+    """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
+
+    The single ``scale`` argument is the point: E1 and E4 (Eq. 3a, 3d) compare left and
+    right intensities, so both cameras must be normalised by the same affine map.
+
+    Parameters
+    ----------
+    left, right : sequence of 3 ndarrays, shape (H, W)
+        Raw frames at t0, t1, t2 of the left and right camera.
+    scale : float
+        Shared normalisation scale in radiance units.
+    curves, maps, shift01 : pairs (left, right)
+        Per-camera characteristic curve, rectification maps and known t0 -> t1 shift.
+    register, denoise_lambda
+        As in :func:`preprocess_camera`, the same for both cameras.
+
+    Returns
+    -------
+    (PreprocessedTriple, PreprocessedTriple)
+        Left and right.
+
+    Raises
+    ------
+    ValueError
+        As :func:`preprocess_camera`, or when the two cameras' results differ in shape.
+    """
+    out = tuple(
+        preprocess_camera(
+            frames,
+            scale=scale,
+            curve=curves[k],
+            maps=maps[k],
+            register=register,
+            denoise_lambda=denoise_lambda,
+            shift01=shift01[k],
+        )
+        for k, frames in enumerate((left, right))
+    )
+    check_same_shape(out[0].diff0, out[1].diff0, "left differential image", "right")
+    return out[0], out[1]

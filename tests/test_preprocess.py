@@ -1,0 +1,194 @@
+"""Radiometric correction, rectification, shared normalisation and the per-camera chain."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from processing.preprocess import (
+    DiffScaleTracker,
+    apply_rectification,
+    check_curve,
+    normalise_difference,
+    preprocess_camera,
+    preprocess_stereo,
+    radiometric_correction,
+)
+from processing.registration import warp_translation
+
+
+def _scene(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:
+    """Smooth textured background radiance."""
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = np.zeros((h, w))
+    for _ in range(60):
+        cx, cy, s, a = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(2, 6), rng.uniform(-1, 1)
+        out += a * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s * s))
+    return (10.0 + out).astype(np.float32)
+
+
+def test_linear_curve_inverts_counts() -> None:
+    radiance = np.linspace(0.0, 5.0, 48, dtype=np.float32).reshape(6, 8)
+    curve = {"gain": 800.0, "offset": 1200.0}
+    counts = np.round(curve["gain"] * radiance + curve["offset"]).astype(np.uint16)
+    out = radiometric_correction(counts, curve)
+    assert out.dtype == np.float32
+    np.testing.assert_allclose(out, radiance, atol=0.5 / 800.0 + 1e-6)
+
+
+def test_quadratic_curve_inverts_counts_and_identity_when_none() -> None:
+    radiance = np.linspace(0.0, 5.0, 48).reshape(6, 8)
+    curve = {"gain": 800.0, "offset": 1200.0, "quadratic": 12.0}
+    counts = curve["quadratic"] * radiance**2 + curve["gain"] * radiance + curve["offset"]
+    np.testing.assert_allclose(radiometric_correction(counts, curve), radiance, atol=1e-4)
+    raw = np.arange(48, dtype=np.uint16).reshape(6, 8)
+    np.testing.assert_array_equal(radiometric_correction(raw, None), raw.astype(np.float32))
+
+
+def test_normalisation_is_identical_for_both_cameras_and_all_frames() -> None:
+    """Same radiance change in two cameras with different curves -> same normalised image.
+
+    And the value of a pixel does not depend on the rest of the frame (unlike a per-frame
+    min-max stretch): a hot pixel elsewhere in one camera changes nothing else.
+    """
+    rng = np.random.default_rng(1)
+    background = _scene()
+    gas = np.zeros_like(background)
+    gas[30:60, 40:90] = 0.3 * rng.standard_normal((30, 50)).astype(np.float32)
+    left_curve = {"gain": 700.0, "offset": 1000.0}
+    right_curve = {"gain": 950.0, "offset": 400.0}
+    scale = 1.0
+
+    def normalised(curve: dict[str, float], frame0: np.ndarray, frame1: np.ndarray) -> np.ndarray:
+        c0 = curve["gain"] * frame0 + curve["offset"]
+        c1 = curve["gain"] * frame1 + curve["offset"]
+        d = radiometric_correction(c0, curve) - radiometric_correction(c1, curve)
+        return normalise_difference(d, scale)
+
+    left = normalised(left_curve, background + gas, background)
+    right = normalised(right_curve, background + gas, background)
+    np.testing.assert_allclose(left, right, atol=1e-4)
+    hot = background.copy()
+    hot[5, 5] += 50.0
+    right_hot = normalised(right_curve, hot + gas, background)
+    outside = np.ones(left.shape, bool)
+    outside[5, 5] = False
+    np.testing.assert_allclose(right_hot[outside], left[outside], atol=1e-4)
+    # A later frame with the same radiance change maps to the same values.
+    later = normalised(left_curve, background + 2.0 + gas, background + 2.0)
+    np.testing.assert_allclose(later, left, atol=1e-4)
+    assert float(left[0, 0]) == pytest.approx(0.5, abs=1e-4)
+
+
+def test_normalise_maps_scale_to_unit_interval() -> None:
+    d = np.array([[-2.0, -1.0, 0.0, 0.5, 1.0, 3.0]], np.float32)
+    np.testing.assert_allclose(
+        normalise_difference(d, 1.0), [[0.0, 0.0, 0.5, 0.75, 1.0, 1.0]], atol=1e-7
+    )
+
+
+def test_scale_tracker_is_shared_and_forgets_slowly() -> None:
+    rng = np.random.default_rng(2)
+    tracker = DiffScaleTracker(1.0, forgetting=0.05, quantile=0.99)
+    left = rng.standard_normal((50, 60)).astype(np.float32)
+    right = 3.0 * rng.standard_normal((50, 60)).astype(np.float32)
+    before = tracker.scale
+    after = tracker.update(left, right)
+    assert after == tracker.scale
+    assert abs(after - before) <= 0.05 * max(before, 10.0)
+    for _ in range(200):
+        tracker.update(left, right)
+    pooled = np.abs(np.concatenate([left[::2, ::2].ravel(), right[::2, ::2].ravel()]))
+    assert tracker.scale == pytest.approx(float(np.quantile(pooled, 0.99)), rel=1e-3)
+
+
+def test_rectification_applies_maps() -> None:
+    img = _scene()
+    h, w = img.shape
+    map_x, map_y = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    np.testing.assert_allclose(apply_rectification(img, map_x, map_y), img, atol=1e-5)
+    shifted = apply_rectification(img, map_x + 2.0, map_y)
+    np.testing.assert_allclose(shifted[:, :-2], img[:, 2:], atol=1e-5)
+
+
+def test_preprocess_camera_removes_jitter_before_differencing() -> None:
+    """A static scene with jitter only: the differential images must be ~0.5 everywhere."""
+    background = _scene(seed=3)
+    frames = [
+        background,
+        warp_translation(background, (-0.4, 0.3)),
+        warp_translation(background, (0.35, -0.25)),
+    ]
+    jittery = preprocess_camera(frames, scale=0.5, register=False, denoise_lambda=0.0)
+    fixed = preprocess_camera(frames, scale=0.5, register=True, denoise_lambda=0.0)
+    inner = (slice(6, -6), slice(6, -6))
+    err_jittery = np.abs(jittery.diff0 - 0.5)[inner].max()
+    err_fixed = np.abs(fixed.diff0 - 0.5)[inner].max()
+    assert err_fixed < 0.1 * err_jittery
+    assert np.abs(fixed.diff1 - 0.5)[inner].max() < 0.1 * np.abs(jittery.diff1 - 0.5)[inner].max()
+    (s01, s12) = fixed.shifts
+    assert s01 == pytest.approx((0.4, -0.3), abs=0.05)
+    assert s12 == pytest.approx((-0.75, 0.55), abs=0.05)
+    assert fixed.diff0.dtype == np.float32
+    assert 0.0 <= float(fixed.diff0.min()) and float(fixed.diff0.max()) <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("curve", "match"),
+    [
+        ({"gain": 0.0, "offset": 1.0}, "gain must be > 0"),
+        ({"gain": 1.0}, "lacks"),
+        ({"gain": 1.0, "offset": 0.0, "slope": 2.0}, "unknown keys"),
+        ({"gain": "x", "offset": 0.0}, "number"),
+        ({"gain": float("inf"), "offset": 0.0}, "finite"),
+    ],
+)
+def test_bad_curve_raises(curve: dict[str, object], match: str) -> None:
+    with pytest.raises(ValueError, match=match):
+        check_curve(curve)  # type: ignore[arg-type]
+
+
+def test_bad_frames_raise() -> None:
+    f = _scene()
+    with pytest.raises(ValueError, match="exactly 3"):
+        preprocess_camera([f, f], scale=1.0)
+    with pytest.raises(ValueError, match="differ in shape"):
+        preprocess_camera([f, f, f[:-1]], scale=1.0)
+    with pytest.raises(ValueError, match="scale"):
+        preprocess_camera([f, f, f], scale=0.0)
+    with pytest.raises(ValueError, match="2-D"):
+        radiometric_correction(np.zeros((3, 4, 2)), None)
+    with pytest.raises(ValueError, match="NaN"):
+        radiometric_correction(np.full((3, 4), np.nan), None)
+    with pytest.raises(ValueError, match="scale"):
+        normalise_difference(np.zeros((4, 4), np.float32), -1.0)
+
+
+def test_preprocess_stereo_shares_the_scale_across_cameras() -> None:
+    """Two cameras with different characteristic curves seeing the same radiance."""
+    rng = np.random.default_rng(6)
+    background = _scene(seed=4)
+    gas = [np.zeros_like(background) for _ in range(3)]
+    for t in range(3):
+        gas[t][30:60, 40 + 3 * t : 90 + 3 * t] = 0.4 * rng.random((30, 50), dtype=np.float32)
+    radiance = [background + g for g in gas]
+    left_curve = {"gain": 700.0, "offset": 1000.0}
+    right_curve = {"gain": 950.0, "offset": 400.0, "quadratic": 3.0}
+
+    def counts(curve: dict[str, float]) -> list[np.ndarray]:
+        q = curve.get("quadratic", 0.0)
+        return [q * r**2 + curve["gain"] * r + curve["offset"] for r in radiance]
+
+    left, right = preprocess_stereo(
+        counts(left_curve),
+        counts(right_curve),
+        scale=0.5,
+        curves=(left_curve, right_curve),
+        register=False,
+        denoise_lambda=1.0,
+    )
+    np.testing.assert_allclose(left.diff0, right.diff0, atol=2e-4)
+    np.testing.assert_allclose(left.diff1, right.diff1, atol=2e-4)
+    with pytest.raises(ValueError, match="differ in shape"):
+        preprocess_stereo(radiance, [r[:, :-1] for r in radiance], scale=0.5, register=False)
