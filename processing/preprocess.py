@@ -28,83 +28,43 @@ exponential forgetting, pooled over both cameras, whose value is held fixed with
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
 from processing.denoise import sobolev_denoise
 from processing.registration import estimate_shift, warp_translation
 from processing.validation import as_float_image, check_positive, check_same_shape
 
-#: Keys of a characteristic curve dict: counts = quadratic * L^2 + gain * L + offset.
-CURVE_KEYS = frozenset({"gain", "offset", "quadratic"})
 
-
-def check_curve(curve: Mapping[str, float] | None) -> dict[str, float] | None:
-    """Validate a characteristic curve dict and return it with floats (None stays None).
-
-    Parameters
-    ----------
-    curve : mapping or None
-        ``{"gain": g, "offset": o}`` with optional ``"quadratic": q``, describing
-        counts = q L^2 + g L + o for in-band radiance L. ``gain`` must be > 0.
-
-    Raises
-    ------
-    ValueError
-        Unknown or missing keys, non-finite values, or gain <= 0.
-    """
-    if curve is None:
-        return None
-    if not isinstance(curve, Mapping):
-        raise ValueError(f"characteristic curve must be a dict, got {type(curve).__name__}")
-    unknown = set(curve) - CURVE_KEYS
-    if unknown:
-        raise ValueError(f"characteristic curve has unknown keys {sorted(unknown)}")
-    missing = {"gain", "offset"} - set(curve)
-    if missing:
-        raise ValueError(f"characteristic curve lacks {sorted(missing)}")
-    out: dict[str, float] = {}
-    for key, value in curve.items():
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(
-                f"characteristic curve {key!r} must be a number, got {value!r}"
-            ) from None
-        if not np.isfinite(v):
-            raise ValueError(f"characteristic curve {key!r} must be finite, got {value!r}")
-        out[key] = v
-    if out["gain"] <= 0:
-        raise ValueError(f"characteristic curve gain must be > 0, got {out['gain']!r}")
-    return out
-
-
-def radiometric_correction(counts: np.ndarray, curve: Mapping[str, float] | None) -> np.ndarray:
+def radiometric_correction(counts: np.ndarray, curve: CharacteristicCurve | None) -> np.ndarray:
     """Convert raw detector counts to in-band radiance by the characteristic curve.
+
+    Validates the frame, then inverts the curve of the calibration file with
+    :func:`processing.calibration.apply_characteristic_curve` (one implementation of the
+    inversion for the whole code base).
 
     Parameters
     ----------
     counts : ndarray, shape (H, W), uint8/uint16/float
         Raw frame.
-    curve : mapping or None
-        Characteristic curve (see :func:`check_curve`): counts = q L^2 + g L + o. ``None``
-        means identity: the result is the counts as float32 (unit "counts").
+    curve : CharacteristicCurve or None
+        The camera's characteristic curve, counts = offset + gain L + curvature L^2, as
+        loaded from the calibration file. ``None`` means identity: the result is the
+        counts as float32 (unit "counts").
 
     Returns
     -------
     ndarray, shape (H, W), float32
-        Radiance L in the unit of the calibration. For the linear curve
-        L = (counts - o) / g. With q != 0 the root continuous with the linear case,
-        L = 2 (c - o) / (g + sqrt(g^2 + 4 q (c - o))), is used; counts beyond the curve's
-        extremum (negative discriminant) are clipped to the extremum.
+        Radiance L in W m^-2 sr^-1 (or counts when ``curve`` is None).
 
     Raises
     ------
     ValueError
-        Not 2-D, not numeric, NaN/inf, or a bad curve.
+        Not 2-D, not numeric, NaN/inf, or ``curve`` is not a CharacteristicCurve.
     """
     if not isinstance(counts, np.ndarray) or counts.ndim != 2:
         raise ValueError(
@@ -112,19 +72,13 @@ def radiometric_correction(counts: np.ndarray, curve: Mapping[str, float] | None
         )
     if not (np.issubdtype(counts.dtype, np.integer) or np.issubdtype(counts.dtype, np.floating)):
         raise ValueError(f"counts must be integer or float, got {counts.dtype}")
-    c = counts.astype(np.float32)
-    if not np.all(np.isfinite(c)):
+    if curve is not None and not isinstance(curve, CharacteristicCurve):
+        raise ValueError(
+            f"curve must be a CharacteristicCurve or None, got {type(curve).__name__}"
+        )
+    if np.issubdtype(counts.dtype, np.floating) and not np.all(np.isfinite(counts)):
         raise ValueError("counts contain NaN or infinite values")
-    params = check_curve(curve)
-    if params is None:
-        return c
-    g, o = params["gain"], params["offset"]
-    q = params.get("quadratic", 0.0)
-    if q == 0.0:
-        return ((c - o) / g).astype(np.float32, copy=False)
-    x = c - o
-    disc = np.maximum(g * g + 4.0 * q * x, 0.0)
-    return (2.0 * x / (g + np.sqrt(disc))).astype(np.float32, copy=False)
+    return apply_characteristic_curve(counts, curve)
 
 
 def apply_rectification(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
@@ -268,7 +222,7 @@ def preprocess_camera(
     frames: Sequence[np.ndarray],
     *,
     scale: float,
-    curve: Mapping[str, float] | None = None,
+    curve: CharacteristicCurve | None = None,
     maps: tuple[np.ndarray, np.ndarray] | None = None,
     register: bool = True,
     denoise_lambda: float = 2.0,
@@ -333,7 +287,7 @@ def preprocess_stereo(
     right: Sequence[np.ndarray],
     *,
     scale: float,
-    curves: tuple[Mapping[str, float] | None, Mapping[str, float] | None] = (None, None),
+    curves: tuple[CharacteristicCurve | None, CharacteristicCurve | None] = (None, None),
     maps: tuple[tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray, np.ndarray] | None] = (
         None,
         None,
