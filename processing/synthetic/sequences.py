@@ -313,8 +313,8 @@ def _table2(
     # Centre the volume between the cameras, 2 m ahead, so both images see all of it.
     centre = (cam.b_m / 2.0, 0.0, 2.0)
     origin = tuple(c - _TABLE2_EXTENT_M / 2.0 for c in centre)
-    src = GasSource(position_m=source_xyz, radius_m=0.020, release_rate_g_s=release_rate_g_s,
-                    exit_velocity_m_s=exit_velocity, turbulence=0.2, release_fluctuation=0.5)
+    src = GasSource(position_m=source_xyz, radius_m=0.030, release_rate_g_s=release_rate_g_s,
+                    exit_velocity_m_s=exit_velocity, turbulence=0.3, release_fluctuation=0.5)
     fluid = FluidParams(shape=(100, 100, 100), voxel_m=0.004, dt_s=0.001, wind_m_s=wind,
                         boundary="open", viscosity_m2_s=0.0, diffusivity_m2_s=0.0,
                         sources=(src,))
@@ -325,19 +325,19 @@ def _table2(
 
 def preset_table2_1(**overrides: Any) -> SequenceConfig:
     """Sequence 1 of Table 2: mostly upward, small X and Z components (|V*| ~ 3.3 m/s)."""
-    return _table2("table2_1", 101, (0.19, 0.36, 0.21), (0.2, -5.0, -0.1), (0.1, -2.5, -0.1),
+    return _table2("table2_1", 101, (0.19, 0.36, 0.21), (0.2, -4.0, -0.1), (0.1, -2.2, -0.1),
                    4.0, **overrides)
 
 
 def preset_table2_2(**overrides: Any) -> SequenceConfig:
     """Sequence 2 of Table 2: upward and to the right (theta_X ~ 71 deg, |V*| ~ 2.7 m/s)."""
-    return _table2("table2_2", 202, (0.12, 0.36, 0.20), (1.5, -4.2, 0.0), (0.8, -2.1, 0.0),
+    return _table2("table2_2", 202, (0.12, 0.36, 0.20), (1.2, -3.4, 0.0), (0.75, -1.75, 0.0),
                    4.0, **overrides)
 
 
 def preset_table2_3(**overrides: Any) -> SequenceConfig:
     """Sequence 3 of Table 2: upward, left and towards the cameras (|V*| ~ 2.7 m/s)."""
-    return _table2("table2_3", 303, (0.26, 0.36, 0.28), (-0.9, -4.2, -1.2), (-0.5, -2.1, -0.6),
+    return _table2("table2_3", 303, (0.26, 0.36, 0.28), (-0.7, -3.4, -1.0), (-0.4, -1.8, -0.5),
                    4.0, **overrides)
 
 
