@@ -185,7 +185,9 @@ def _distort(xn: np.ndarray, yn: np.ndarray, k1: float, k2: float) -> tuple[np.n
     return xn * f, yn * f
 
 
-def _undistort(xd: np.ndarray, yd: np.ndarray, k1: float, k2: float) -> tuple[np.ndarray, np.ndarray]:
+def _undistort(
+    xd: np.ndarray, yd: np.ndarray, k1: float, k2: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Invert the radial model by fixed-point iteration (converges for moderate distortion)."""
     xu, yu = xd.copy(), yd.copy()
     for _ in range(30):
@@ -304,7 +306,7 @@ def _march(
                 continue
             norm = math.sqrt(dirs[y, x, 0] ** 2 + dirs[y, x, 1] ** 2 + dirs[y, x, 2] ** 2)
             length = (t1 - t0) * norm
-            n = max(1, int(math.ceil(length / (step_cells * h))))
+            n = max(1, math.ceil(length / (step_cells * h)))
             dt = (t1 - t0) / n
             dl = dt * norm
             acc = 0.0

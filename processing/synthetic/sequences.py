@@ -294,6 +294,45 @@ def generate_sequence(
         yield frame
 
 
+def frame_characteristics(frame: SyntheticFrame) -> dict[str, Any]:
+    """Table 2's per-frame characteristics of the ground truth over the gas mask.
+
+    Returns
+    -------
+    dict with ``v_avg_m_s`` (3,) mean V*, ``speed_avg_m_s`` = |mean V*|, ``angles_deg`` (3,)
+    directional angles arccos(V_avg / |V_avg|) (paper footnote 1), ``speed_std_m_s`` (std of
+    the pixelwise |V*|), ``n_px`` (gas pixels); NaN entries when the mask is empty.
+    """
+    v = frame.gt_velocity[frame.gt_mask].astype(np.float64)
+    if len(v) == 0:
+        nan3 = [float("nan")] * 3
+        return {"v_avg_m_s": nan3, "speed_avg_m_s": float("nan"), "angles_deg": nan3,
+                "speed_std_m_s": float("nan"), "n_px": 0}
+    avg = v.mean(axis=0)
+    speed = float(np.linalg.norm(avg))
+    angles = np.degrees(np.arccos(np.clip(avg / speed, -1.0, 1.0))) if speed > 0 else avg * np.nan
+    return {
+        "v_avg_m_s": [float(x) for x in avg],
+        "speed_avg_m_s": speed,
+        "angles_deg": [float(x) for x in angles],
+        "speed_std_m_s": float(np.linalg.norm(v, axis=1).std()),
+        "n_px": len(v),
+    }
+
+
+def sequence_characteristics(per_frame: list[dict[str, Any]]) -> dict[str, Any]:
+    """Average :func:`frame_characteristics` over frames (the rows of the paper's Table 2)."""
+    if not per_frame:
+        raise ValueError("no frames to characterise")
+    return {
+        "speed_avg_m_s": float(np.mean([f["speed_avg_m_s"] for f in per_frame])),
+        "angles_deg": [float(x) for x in np.mean([f["angles_deg"] for f in per_frame], axis=0)],
+        "speed_std_m_s": float(np.mean([f["speed_std_m_s"] for f in per_frame])),
+        "n_px": float(np.mean([f["n_px"] for f in per_frame])),
+        "n_frames": len(per_frame),
+    }
+
+
 # --------------------------------------------------------------------------------------------
 # presets
 

@@ -24,7 +24,8 @@ sceneflow``) and users' scripts read it. A sequence is one directory::
      "simulation": {...},                       # grid, voxel size, step, sources, spin-up
      "options": {"noise_netd_k", "jitter_px", "radiometric_mismatch", "lens_k1", "lens_k2",
                  "moving_object"},
-     "ground_truth": "..."}                     # one-line statement of the GT semantics
+     "ground_truth": "...",                     # one-line statement of the GT semantics
+     "statistics": {...}}                       # optional: Table-2 characteristics of the GT
 
 Geometry is the one of :mod:`processing.synthetic.render`: left camera frame X right, Y down,
 Z forward; the right camera at X = +b; disparity ``d = x_L - x_R = s b / Z > 0``.
@@ -182,10 +183,17 @@ def write_sequence(
         count += 1
     if count != meta["n_frames"]:
         raise ValueError(f"meta says n_frames={meta['n_frames']} but {count} frames were given")
-    tmp = out / (META_NAME + ".part")
-    tmp.write_text(json.dumps(meta, indent=2, sort_keys=False) + "\n", encoding="utf-8")
-    os.replace(tmp, out / META_NAME)
+    write_meta(out, meta)
     return out
+
+
+def write_meta(directory: str | os.PathLike[str], meta: dict[str, Any]) -> None:
+    """(Re)write ``meta.json`` atomically after checking it (e.g. to add statistics)."""
+    validate_meta(meta)
+    out = Path(directory)
+    tmp = out / (META_NAME + ".part")
+    tmp.write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
+    os.replace(tmp, out / META_NAME)
 
 
 def read_sequence_meta(directory: str | os.PathLike[str]) -> dict[str, Any]:
@@ -215,7 +223,8 @@ def read_sequence_meta(directory: str | os.PathLike[str]) -> dict[str, Any]:
 def _expect(arr: np.ndarray, key: str, dtype: Any, shape: tuple[int, ...], path: Path) -> None:
     if arr.dtype != np.dtype(dtype) or arr.shape != shape:
         raise SequenceFormatError(
-            f"{path}: {key} is {arr.dtype}{list(arr.shape)}, expected {np.dtype(dtype)}{list(shape)}"
+            f"{path}: {key} is {arr.dtype}{list(arr.shape)}, "
+            f"expected {np.dtype(dtype)}{list(shape)}"
         )
 
 
