@@ -349,8 +349,10 @@ def _table2(
     **overrides: Any,
 ) -> SequenceConfig:
     cam = StereoCamera()
-    # Centre the volume between the cameras, 2 m ahead, so both images see all of it.
-    centre = (cam.b_m / 2.0, 0.0, 2.0)
+    # Centre the volume between the cameras, 2 m ahead; raise it by 12 cm so that its top face,
+    # where the rising gas leaves the simulation, lies above the images' field of view (gas
+    # vanishing at a face that the cameras see would make a motionless edge).
+    centre = (cam.b_m / 2.0, -0.12, 2.0)
     origin = tuple(c - _TABLE2_EXTENT_M / 2.0 for c in centre)
     src = GasSource(position_m=source_xyz, radius_m=0.030, release_rate_g_s=release_rate_g_s,
                     exit_velocity_m_s=exit_velocity, turbulence=0.3, release_fluctuation=0.5)
@@ -391,12 +393,13 @@ def preset_field(
 ) -> SequenceConfig:
     """The appliance's simulated cameras: 30 Hz, plume ~5.5 m away, wind from the anemometer.
 
-    Grid 64 x 48 x 48 (X, Y, Z) of 3 cm (1.92 x 1.44 x 1.44 m), two 1/60 s steps per frame.
-    The source sits low and upstream of the wind so the plume crosses the view; at 5.5 m one
-    pixel is ~7 mm, so a wind of 1-3 m/s moves the gas ~5-14 px per frame.
+    Grid 96 x 64 x 48 (X, Y, Z) of 3 cm (2.88 x 1.92 x 1.44 m, wider and taller than both
+    cameras' views at 5.5 m, so gas leaves the simulation outside the images), two 1/60 s steps
+    per frame. The source sits low and upstream of the wind so the plume crosses the view; at
+    5.5 m one pixel is ~7 mm, so a wind of 1-3 m/s moves the gas ~5-14 px per frame.
     """
     cam = StereoCamera(b_m=b_m)
-    nx, ny, nz, h = 64, 48, 48, 0.03
+    nx, ny, nz, h = 96, 64, 48, 0.03
     ext = np.array([nx, ny, nz]) * h
     centre = np.array([b_m / 2.0, 0.0, distance_m])
     origin = tuple(float(v) for v in centre - ext / 2.0)
@@ -404,8 +407,8 @@ def preset_field(
     horiz = np.array([w[0], 0.0, w[2]])
     norm = float(np.linalg.norm(horiz))
     upstream = -horiz / norm if norm > 1e-6 else np.zeros(3)
-    pos = ext / 2.0 + 0.3 * ext * upstream
-    pos[1] = ext[1] - 0.2  # 20 cm above the volume's floor
+    pos = ext / 2.0 + 0.25 * ext * upstream
+    pos[1] = ext[1] - 0.45  # ~0.5 m below the optical axis, inside the view
     src = GasSource(position_m=tuple(float(v) for v in pos), radius_m=0.045,
                     release_rate_g_s=release_rate_g_s, exit_velocity_m_s=(0.0, -1.0, 0.0),
                     turbulence=0.5, release_fluctuation=0.4)
