@@ -10,7 +10,8 @@ Prints, after a warm-up that compiles the numba kernels:
   truth (medians of 5 runs),
 - the wall time to generate and write the three Table-2 sequences (what ``ogiflow simulate``
   does by default), per sequence and in total, with their Table-2 characteristics,
-- the time per frame of the ``field`` preset (the appliance's simulated cameras).
+- the time per frame of the ``field`` preset (the appliance's simulated cameras) at 3 cm and
+  6 cm voxels.
 The machine is shared: compare the total with the sum of the parts measured in the same run.
 """
 
@@ -72,10 +73,9 @@ def main() -> int:
     c = sim.state.c * 1e6 / cfg.radiometry.gas_density_kg_m3
     vel = sim.state.cell_velocity()
 
-    def render() -> None:
-        column_integrals(c, vol, dirs, 0.0)
-        column_integrals(c, vol, dirs, cfg.camera.b_m)
+    def render() -> None:  # what one frame costs: left with ground truth, right
         column_integrals(c, vol, dirs, 0.0, velocity=vel)
+        column_integrals(c, vol, dirs, cfg.camera.b_m)
 
     t_render = _median_time(render)
     print(f"fluid step 100^3 (median of 5): {t_step * 1e3:.0f} ms")
@@ -110,11 +110,13 @@ def main() -> int:
               f"(target < 300 s; {total / expected:.2f} x the sum of the parts)")
 
     if not args.skip_field:
-        scene = SyntheticStereoScene(preset("field"))
-        scene.next_frame()
-        t_frame = _median_time(scene.next_frame)
-        print(f"field preset: {t_frame * 1e3:.0f} ms per 30 Hz frame (median of 5) "
-              f"-> {1.0 / t_frame:.1f} frames/s on one core")
+        for voxel in (0.03, 0.06):
+            scene = SyntheticStereoScene(preset("field", voxel_m=voxel))
+            scene.next_frame()
+            t_frame = _median_time(scene.next_frame)
+            print(f"field preset, {voxel * 100:.0f} cm voxels {scene.config.fluid.shape}: "
+                  f"{t_frame * 1e3:.0f} ms per 30 Hz frame (median of 5) "
+                  f"-> {1.0 / t_frame:.1f} frames/s on one core")
     return 0
 
 

@@ -467,11 +467,11 @@ class FluidSimulation:
         self.rng = np.random.default_rng(seed)
         self.state = state if state is not None else initial_state(params)
         self._wind = np.asarray(params.wind_m_s, dtype=float)
-        self._src = [
-            (s, _source_mask(params, s), _faces_of(_source_mask(params, s)),
-             _faces_of(_source_mask(params, s, dilate_m=2 * params.voxel_m)))
-            for s in params.sources
-        ]
+        self._src = []
+        for s in params.sources:
+            cells = _source_mask(params, s)
+            halo = _faces_of(_source_mask(params, s, dilate_m=2 * params.voxel_m))
+            self._src.append((s, cells, _faces_of(cells), halo))
         self._jet_dir = [np.zeros(3) for _ in params.sources]
 
     @property
