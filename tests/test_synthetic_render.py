@@ -195,7 +195,7 @@ def test_ground_truth_velocity_explains_the_rendered_gas_motion() -> None:
     simulated plume must explain how its column density changes between frames: the best
     scale k of the GT flow is 1 and the residual is small (away from the source, where gas
     appears). Measured: this 40^3 grid k = 0.98, residual 0.20 (a GT scaled by 0.8 gives
-    k = 1.23 and fails); the full-size Table-2 sequences k = 0.99-1.00, residual 0.08-0.13."""
+    k = 1.23 and fails); the full-size Table-2 sequences k = 0.99-1.00, residual 0.11-0.14."""
     from processing.synthetic.sequences import generate_sequence, preset
 
     cfg = preset("table2_1", n_frames=4)
