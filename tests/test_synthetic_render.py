@@ -41,6 +41,14 @@ def test_point_projects_with_eq4_geometry(xyz: tuple[float, float, float]) -> No
     assert 780.0 * 0.2 / d == pytest.approx(Z)
 
 
+def test_lens_option_reaches_rendering_and_meta() -> None:
+    from processing.synthetic.sequences import preset
+
+    cfg = preset("table2_1", options=RenderOptions(lens_k1=-0.1))
+    assert cfg.meta()["camera"]["k1"] == -0.1
+    assert cfg.effective_camera().k1 == -0.1
+
+
 def test_ray_directions_invert_projection_with_lens_distortion() -> None:
     cam = replace(CAM, k1=-0.2, k2=0.05)
     dirs = ray_directions(cam)
@@ -158,7 +166,10 @@ def test_ideal_conditions_by_default_and_options_change_images_not_truth() -> No
         {"radiometric_mismatch": True},
         {"moving_object": MovingObject(z_m=4.0, radius_m=0.3, center_m=(0.0, 0.0))},
     ):
-        f = _scene_with_blob(_translating_config(wind, **opts)).next_frame()
+        cfg = _translating_config(wind, **opts)
+        f = _scene_with_blob(cfg).next_frame()
+        if "radiometric_mismatch" in opts:  # meta.json reports the effective counts models
+            assert cfg.meta()["counts_model"]["right"]["offset"] == 2150.0
         assert not np.array_equal(f.left, ideal.left) or not np.array_equal(f.right, ideal.right)
         np.testing.assert_array_equal(f.gt_mask, ideal.gt_mask)
         np.testing.assert_allclose(f.gt_velocity, ideal.gt_velocity, equal_nan=True)

@@ -65,6 +65,9 @@ def test_round_trip(tmp_path: Path) -> None:
             assert np.asarray(getattr(b, key)).dtype == arr.dtype
     assert list_sequences(tmp_path) == [d]
     assert not list((tmp_path / "seq").glob("*.part"))
+    # rewriting with fewer frames leaves no stale frame files behind
+    write_sequence(d, _meta(2), frames[:2])
+    assert sorted(p.name for p in d.glob("frame_*")) == ["frame_00000.npz", "frame_00001.npz"]
 
 
 def test_missing_and_bad_meta(tmp_path: Path) -> None:

@@ -86,8 +86,7 @@ class RenderOptions:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-able form for ``meta.json``."""
-        d = dataclasses.asdict(self)
-        return d
+        return dataclasses.asdict(self)
 
 
 @dataclass(frozen=True)
@@ -146,9 +145,24 @@ class SequenceConfig:
         if self.volume_origin_m[2] <= 0:
             raise ValueError("the volume must lie in front of the cameras (origin Z > 0)")
 
+    def effective_camera(self) -> StereoCamera:
+        """The camera with the options applied (lens distortion)."""
+        opts = self.options
+        return replace(self.camera, k1=opts.lens_k1 or self.camera.k1,
+                       k2=opts.lens_k2 or self.camera.k2)
+
+    def effective_counts(self) -> tuple[CountsModel, CountsModel]:
+        """(left, right) counts models with the options applied (radiometric mismatch)."""
+        right = self.counts_right
+        if self.options.radiometric_mismatch:
+            right = CountsModel(gain=right.gain * 1.04, offset=right.offset + 150.0)
+        return self.counts_left, right
+
     def meta(self) -> dict[str, Any]:
-        """The ``meta.json`` object of this sequence (format ``ogiflow-synthetic/1``)."""
-        cam = self.camera
+        """The ``meta.json`` object of this sequence (format ``ogiflow-synthetic/1``); camera
+        and counts models are the effective ones (options applied)."""
+        cam = self.effective_camera()
+        counts_left, counts_right = self.effective_counts()
         fl = self.fluid
         rad = self.radiometry
         return {
@@ -162,8 +176,8 @@ class SequenceConfig:
                 "cx_px": cam.cx, "cy_px": cam.cy, "b_m": cam.b_m, "k1": cam.k1, "k2": cam.k2,
             },
             "counts_model": {
-                "left": dataclasses.asdict(self.counts_left),
-                "right": dataclasses.asdict(self.counts_right),
+                "left": dataclasses.asdict(counts_left),
+                "right": dataclasses.asdict(counts_right),
             },
             "radiometry": {
                 "t_bg_k": rad.t_bg_k, "t_gas_k": rad.t_gas_k,
@@ -210,15 +224,8 @@ class SyntheticStereoScene:
     def __init__(self, config: SequenceConfig, spin_up: bool = True):
         config.validate()
         self.config = config
-        opts = config.options
-        self.camera = replace(config.camera, k1=opts.lens_k1 or config.camera.k1,
-                              k2=opts.lens_k2 or config.camera.k2)
-        counts_right = config.counts_right
-        if opts.radiometric_mismatch:
-            counts_right = CountsModel(gain=counts_right.gain * 1.04,
-                                       offset=counts_right.offset + 150.0)
-        self.counts_left = config.counts_left
-        self.counts_right = counts_right
+        self.camera = config.effective_camera()
+        self.counts_left, self.counts_right = config.effective_counts()
         self.volume = Volume(config.volume_origin_m, config.fluid.voxel_m, config.fluid.shape)
         self.dirs = ray_directions(self.camera)
         self.sim = FluidSimulation(config.fluid, seed=config.seed)
@@ -367,7 +374,7 @@ def _table2(
     fluid = FluidParams(shape=(100, 100, 100), voxel_m=0.004, dt_s=0.001, wind_m_s=wind,
                         boundary="open", viscosity_m2_s=0.0, diffusivity_m2_s=0.0,
                         sources=(src,))
-    cfg = SequenceConfig(name=name, fluid=fluid, volume_origin_m=origin, n_frames=11,  # type: ignore[arg-type]
+    cfg = SequenceConfig(name=name, fluid=fluid, volume_origin_m=origin, n_frames=11,
                          substeps=1, spinup_steps=60, spinup_dt_s=0.003, seed=seed, camera=cam)
     return replace(cfg, **overrides) if overrides else cfg
 
@@ -430,9 +437,9 @@ def preset_field(
     # two steps per frame keep the CFL number near 1 at 3 cm and 3 m/s (semi-Lagrangian is
     # stable beyond, only more diffusive)
     fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=1.0 / 60.0,
-                        wind_m_s=tuple(float(v) for v in w), boundary="open",  # type: ignore[arg-type]
+                        wind_m_s=tuple(float(v) for v in w), boundary="open",
                         viscosity_m2_s=0.0, diffusivity_m2_s=0.0, sources=(src,))
-    cfg = SequenceConfig(name="field", fluid=fluid, volume_origin_m=origin,  # type: ignore[arg-type]
+    cfg = SequenceConfig(name="field", fluid=fluid, volume_origin_m=origin,
                          n_frames=n_frames, substeps=2, spinup_steps=120,
                          spinup_dt_s=1.0 / 60.0, seed=seed, camera=cam, necl_ppm_m=100.0)
     return replace(cfg, **overrides) if overrides else cfg

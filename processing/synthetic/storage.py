@@ -183,6 +183,9 @@ def write_sequence(
         count += 1
     if count != meta["n_frames"]:
         raise ValueError(f"meta says n_frames={meta['n_frames']} but {count} frames were given")
+    for old in out.glob("frame_*.npz"):  # frames of an older, longer sequence written here
+        if old.stem[6:].isdigit() and int(old.stem[6:]) >= count:
+            old.unlink()
     write_meta(out, meta)
     return out
 
