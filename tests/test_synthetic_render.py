@@ -251,3 +251,30 @@ def test_field_preset_gas_drifts_with_the_anemometer_wind() -> None:
     np.testing.assert_allclose(v[[0, 2]], wind[[0, 2]], rtol=0.25, atol=0.15)
     assert v[1] < 0.1
     assert np.nanmean(f.gt_position[f.gt_mask][:, 2]) == pytest.approx(5.5, abs=0.5)
+
+
+def test_eq4_reference_inverts_eq4_on_a_rendered_frame() -> None:
+    """(u, v, d, d') from the ground truth, put through Eq. 4, give back V* (paper Eq. 4 written
+    out here independently of the scene-flow chain)."""
+    from processing.synthetic.reference import eq4_reference, triplet_reference
+
+    cfg = _translating_config((1.0, -2.0, 0.5))
+    scene = _scene_with_blob(cfg)
+    f0, f1 = scene.next_frame(), scene.next_frame()
+    ref = eq4_reference(f0.gt_position, f0.gt_velocity, CAM.s_px, CAM.b_m, cfg.frame_interval_s)
+    m = f0.gt_mask
+    fr = 1.0 / cfg.frame_interval_s
+    ys, xs = np.mgrid[:240, :320].astype(float)
+    u, v, d, dp = (a.astype(float) for a in (ref.u, ref.v, ref.d, ref.d_prime))
+    vx = fr * CAM.b_m * ((xs - CAM.cx + u) / (d + dp) - (xs - CAM.cx) / d)
+    vy = fr * CAM.b_m * ((ys - CAM.cy + v) / (d + dp) - (ys - CAM.cy) / d)
+    vz = fr * CAM.b_m * (CAM.s_px / (d + dp) - CAM.s_px / d)
+    np.testing.assert_allclose(np.stack((vx, vy, vz), -1)[m], f0.gt_velocity[m], atol=2e-3)
+    assert np.all(ref.d[m] > 0)  # d = x_L - x_R > 0
+    np.testing.assert_allclose(ref.d[m], 780 * 0.2 / f0.gt_position[m][:, 2], rtol=1e-5)
+    assert np.isnan(ref.u[~np.isfinite(f0.gt_velocity[..., 0])]).all()
+    vel, mask = triplet_reference(f0, f1)
+    np.testing.assert_allclose(vel[mask], np.broadcast_to([1.0, -2.0, 0.5], (mask.sum(), 3)),
+                               atol=1e-5)
+    with pytest.raises(ValueError, match="consecutive"):
+        triplet_reference(f1, f0)

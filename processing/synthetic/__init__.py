@@ -5,6 +5,8 @@
   left camera's ground truth (V*, 3D position, gas mask, column density).
 - :mod:`~processing.synthetic.sequences`: presets (Table 2, field) and frame generation.
 - :mod:`~processing.synthetic.storage`: the on-disk format ``ogiflow-synthetic/1``.
+- :mod:`~processing.synthetic.reference`: Eq. 4's image quantities (u, v, d, d') from the
+  ground truth, and the 3D reference of a raw-frame triplet.
 """
 
 from processing.synthetic.storage import (

@@ -55,6 +55,8 @@ those of frame ``i``. For Eq. 4 on raw frames (t0, t1, t2) = (i, i+1, i+2), whos
 images are formed from the motion i -> i+1 -> i+2, the matching reference is
 ``0.5 * (gt_velocity[i] + gt_velocity[i+1])`` on ``gt_mask[i]``; over a 1 ms interval the two
 differ little, so ``gt_velocity[i]`` alone is a close alternative.
+:func:`processing.synthetic.reference.triplet_reference` computes it, and
+:func:`processing.synthetic.reference.eq4_reference` gives the matching (u, v, d, d').
 """
 
 from __future__ import annotations
