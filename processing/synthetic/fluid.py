@@ -60,8 +60,9 @@ class GasSource:
     exit_velocity_m_s : (3,) tuple of float
         Velocity (X, Y, Z) imposed inside the sphere, m/s (Y down: upward is negative).
     turbulence : float
-        Scale of the random velocity perturbation added in and around the source, as a
-        fraction of ``max(|exit_velocity_m_s|, 1 m/s)``.
+        Scale of the random velocity perturbation drawn at every step in and around the
+        source, as a fraction of ``max(|exit_velocity_m_s|, 1 m/s)``: a jet direction that
+        wanders (AR(1), correlation ~10 steps) plus white noise per face.
     release_fluctuation : float
         Relative standard deviation of the per-step release (puffing); its mean stays
         ``release_rate_g_s``. Puffs give the concentration texture that differential images
