@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.recover",
     "appliance.commands.calibrate",
     "appliance.commands.eval_footage",
+    "appliance.commands.simulate",
 )
 
 EXIT_OK = 0

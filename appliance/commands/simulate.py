@@ -1,0 +1,207 @@
+"""``ogiflow simulate``: generate synthetic stereo OGI sequences with ground truth (issue 4).
+
+Writes one directory per sequence in the ``ogiflow-synthetic/1`` format (see
+:mod:`processing.synthetic.storage`); by default the three Table-2-like sequences.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+from appliance.cli import CommandError
+
+_PRESET_HELP = (
+    "preset to generate (repeatable): table2 (= table2_1, table2_2, table2_3; the default), "
+    "table2_1, table2_2, table2_3, field"
+)
+
+
+def register(root: argparse._SubParsersAction) -> None:
+    """Add the ``simulate`` subcommand."""
+    p = root.add_parser(
+        "simulate",
+        help="generate synthetic stereo gas sequences with ground truth",
+        description=(
+            "Simulate a buoyant gas release (Stable Fluids), render it into a left and a right "
+            "OGI camera (Eq. 1) and write raw uint16 frames with the left camera's ground truth "
+            "(3D velocity V*, 3D position, gas mask, column density) to OUT/<preset>/. "
+            "Without --preset, the three sequences resembling the paper's Table 2 are written."
+        ),
+    )
+    p.add_argument("--out", required=True, type=Path, help="output directory")
+    p.add_argument("--preset", action="append", metavar="NAME", help=_PRESET_HELP)
+    p.add_argument("--frames", type=int, help="number of frames (default: the preset's)")
+    p.add_argument("--seed", type=int, help="random seed (default: the preset's fixed seed)")
+    p.add_argument("--wind", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="ambient wind in the left camera frame (X right, Y down, Z forward), m/s")
+    p.add_argument("--baseline", type=float, metavar="M",
+                   help="stereo baseline b in m (default 0.2; field preset 0.3)")
+    p.add_argument("--release-rate", type=float, metavar="G_S", help="mean release rate in g/s")
+    p.add_argument("--necl", type=float, metavar="PPM_M",
+                   help="detection limit for the ground-truth gas mask, ppm*m (default 100)")
+    p.add_argument("--grid-scale", type=float, default=1.0, metavar="F",
+                   help="scale the number of cells per axis by F, keeping the physical volume "
+                        "(default 1; e.g. 0.5 for a quick coarse look)")
+    p.add_argument("--spinup-steps", type=int, metavar="N",
+                   help="simulation steps before the first frame (default: the preset's)")
+    noise = p.add_argument_group("non-ideal camera effects (all off by default, as in Sec. 5.1)")
+    noise.add_argument("--noise", type=float, default=0.0, metavar="NETD_K",
+                       help="temporal noise as a NETD in K, e.g. 0.03 (default 0: none)")
+    noise.add_argument("--jitter", type=float, default=0.0, metavar="PX",
+                       help="std. dev. of a random per-frame shift of each camera, px (default 0)")
+    noise.add_argument("--radiometric-mismatch", action="store_true",
+                       help="right camera with 4%% more gain and 150 counts more offset")
+    noise.add_argument("--lens-k1", type=float, default=0.0, metavar="K1",
+                       help="radial lens distortion k1 of both cameras (default 0)")
+    noise.add_argument("--moving-object", action="store_true",
+                       help="a warm disk moving behind the gas")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite sequences that already exist in OUT")
+    p.set_defaults(func=run)
+
+
+def _expand_presets(names: list[str] | None) -> list[str]:
+    from processing.synthetic.sequences import PRESETS, TABLE2_PRESETS
+
+    out: list[str] = []
+    for name in names or ["table2"]:
+        expanded = list(TABLE2_PRESETS) if name == "table2" else [name]
+        for n in expanded:
+            if n not in PRESETS:
+                raise ValueError(
+                    f"unknown preset {n!r}; choose from table2, {', '.join(PRESETS)}"
+                )
+            if n not in out:
+                out.append(n)
+    return out
+
+
+def _build_config(name: str, args: argparse.Namespace) -> Any:
+    from dataclasses import replace
+
+    from processing.synthetic.render import MovingObject
+    from processing.synthetic.sequences import RenderOptions, preset
+
+    kwargs: dict[str, Any] = {}
+    if name == "field":
+        if args.wind is not None:
+            kwargs["wind_m_s"] = tuple(args.wind)
+        if args.baseline is not None:
+            kwargs["b_m"] = args.baseline
+        if args.release_rate is not None:
+            kwargs["release_rate_g_s"] = args.release_rate
+    cfg = preset(name, **kwargs)
+    fluid = cfg.fluid
+    if name != "field":
+        if args.wind is not None:
+            fluid = replace(fluid, wind_m_s=tuple(args.wind))
+        if args.release_rate is not None:
+            fluid = replace(fluid, sources=tuple(
+                replace(s, release_rate_g_s=args.release_rate) for s in fluid.sources))
+        if args.baseline is not None:
+            cfg = replace(cfg, camera=replace(cfg.camera, b_m=args.baseline))
+    if args.grid_scale != 1.0:
+        if not 0.05 <= args.grid_scale <= 4.0:
+            raise ValueError(f"--grid-scale must be within 0.05..4, got {args.grid_scale}")
+        shape = tuple(max(8, round(n * args.grid_scale)) for n in fluid.shape)
+        voxel = fluid.voxel_m * fluid.shape[2] / shape[2]
+        fluid = replace(fluid, shape=shape, voxel_m=voxel)
+    cfg = replace(cfg, fluid=fluid)
+    if args.frames is not None:
+        if args.frames < 1:
+            raise ValueError(f"--frames must be >= 1, got {args.frames}")
+        cfg = replace(cfg, n_frames=args.frames)
+    if args.seed is not None:
+        cfg = replace(cfg, seed=args.seed)
+    if args.spinup_steps is not None:
+        if args.spinup_steps < 0:
+            raise ValueError(f"--spinup-steps must be >= 0, got {args.spinup_steps}")
+        cfg = replace(cfg, spinup_steps=args.spinup_steps)
+    if args.necl is not None:
+        if args.necl <= 0:
+            raise ValueError(f"--necl must be > 0, got {args.necl}")
+        cfg = replace(cfg, necl_ppm_m=args.necl)
+    opts = RenderOptions(
+        noise_netd_k=args.noise,
+        jitter_px=args.jitter,
+        radiometric_mismatch=args.radiometric_mismatch,
+        lens_k1=args.lens_k1,
+        moving_object=MovingObject() if args.moving_object else None,
+    )
+    cfg = replace(cfg, options=opts)
+    cfg.validate()
+    return cfg
+
+
+class _Progress:
+    """A plain-text progress bar on a stream: redrawn in place on a terminal, lines otherwise."""
+
+    def __init__(self, label: str, stream: TextIO, width: int = 30):
+        self.label = label
+        self.stream = stream
+        self.width = width
+        self.start = time.perf_counter()
+        self.tty = stream.isatty()
+
+    def __call__(self, done: int, total: int) -> None:
+        fill = int(self.width * done / total) if total else self.width
+        bar = "#" * fill + "." * (self.width - fill)
+        stage = "spin-up done" if done == 0 else f"{done}/{total} frames"
+        text = f"{self.label} [{bar}] {stage} {time.perf_counter() - self.start:6.1f} s"
+        if self.tty:
+            self.stream.write("\r" + text + ("\n" if done == total else ""))
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Generate the requested sequences; print one summary line per sequence."""
+    from processing.synthetic.sequences import (
+        frame_characteristics,
+        generate_sequence,
+        sequence_characteristics,
+    )
+    from processing.synthetic.storage import META_NAME, write_meta, write_sequence
+
+    names = _expand_presets(args.preset)
+    configs = [_build_config(n, args) for n in names]
+    out: Path = args.out
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a directory")
+    for cfg in configs:
+        target = out / cfg.name
+        if (target / META_NAME).exists() and not args.force:
+            raise ValueError(f"{target} already holds a sequence; use --force to overwrite")
+    total_start = time.perf_counter()
+    for cfg in configs:
+        target = out / cfg.name
+        per_frame: list[dict[str, Any]] = []
+
+        def frames(cfg: Any = cfg, per_frame: list[dict[str, Any]] = per_frame) -> Any:
+            for f in generate_sequence(cfg, progress=_Progress(cfg.name, sys.stderr)):
+                per_frame.append(frame_characteristics(f))
+                yield f
+
+        start = time.perf_counter()
+        try:
+            write_sequence(target, cfg.meta(), frames())
+        except OSError as exc:
+            raise CommandError(f"writing {target} failed: {exc}") from exc
+        stats = sequence_characteristics(per_frame)
+        meta = cfg.meta()
+        meta["statistics"] = stats
+        write_meta(target, meta)
+        ang = ", ".join(f"{a:.1f}" for a in stats["angles_deg"])
+        print(
+            f"{cfg.name}: {cfg.n_frames} frames -> {target}"
+            f"  |V*avg| {stats['speed_avg_m_s']:.2f} m/s"
+            f"  angles (X, Y, Z) ({ang}) deg  sd|V*| {stats['speed_std_m_s']:.2f} m/s"
+            f"  N {stats['n_px']:.0f} px  ({time.perf_counter() - start:.1f} s)"
+        )
+    print(f"total {time.perf_counter() - total_start:.1f} s for {len(configs)} sequence(s)")
+    return 0
