@@ -225,20 +225,20 @@ def _level_disparity(
     l0x = derivatives.dx(il0)
     r0x = derivatives.dx(ir0)
     r1x = derivatives.dx(ir1)
+    # Catmull-Rom warps (not OpenCV's a = -0.75 cubic): their phase-dependent bias would
+    # show up directly in d' (see derivatives.warp2_catmull_rom).
+    warp2 = derivatives.warp2_catmull_rom
     # The flow is fixed: I_L(x + w, t1) and its derivative are warped once per level.
     fx, fy = xx + u, yy + v
-    l1w = derivatives.warp(il1, fx, fy)
-    l1wx = derivatives.warp(derivatives.dx(il1), fx, fy)
+    l1w, l1wx = warp2(il1, derivatives.dx(il1), fx, fy)
     m_l1 = derivatives.inside_mask(fx, fy)
     for _ in range(n_warps):
         mx0 = xx - d
         m1 = derivatives.inside_mask(mx0, yy)
-        r0w = derivatives.warp(ir0, mx0, yy)
-        r0wx = derivatives.warp(r0x, mx0, yy)
+        r0w, r0wx = warp2(ir0, r0x, mx0, yy)
         mx1 = fx - d - dp
         m_r1 = derivatives.inside_mask(mx1, fy)
-        r1w = derivatives.warp(ir1, mx1, fy)
-        r1wx = derivatives.warp(r1x, mx1, fy)
+        r1w, r1wx = warp2(ir1, r1x, mx1, fy)
         e1 = r0w - il0
         e3 = r1w - r0w
         e4 = r1w - l1w

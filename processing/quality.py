@@ -6,9 +6,10 @@ U_SF evaluates the energy density of Eq. 6 with the final fields:
            + psi(|E1|^2) + psi(|E3|^2) + psi(|E4|^2)
 
 with the data terms E1, E3, E4 of Eq. 3 in the sign convention of
-:mod:`processing.disparity` (``x_R = x_L - d``), the right images warped by bicubic
-interpolation at the final d, d' and w. Its floor is (gamma1 + gamma2 + 3) eps (psi(0) =
-eps), about 0.0036 at the paper's parameters, so exp(-U_SF) <= 1.
+:mod:`processing.disparity` (``x_R = x_L - d``), the images warped by Catmull-Rom
+bicubic interpolation (as in the solver) at the final d, d' and w. Its floor is
+(gamma1 + gamma2 + 3) eps (psi(0) = eps), about 0.0036 at the paper's parameters, so
+exp(-U_SF) <= 1.
 
 c_USF = |Omega_g|^-1 sum over Omega_g of exp(-U_SF) (Eq. 8): close to 1 when the
 stereo-kinematic assumptions hold in the gas region.
@@ -24,6 +25,11 @@ from processing.validation import as_float_image, as_flow_field, check_positive,
 
 def _psi(s2: np.ndarray, eps: float) -> np.ndarray:
     return np.sqrt(s2 + np.float32(eps * eps))
+
+
+def _warp(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
+    # The solver's interpolation (Catmull-Rom), so U_SF judges the fields it produced.
+    return derivatives.warp2_catmull_rom(image, image, map_x, map_y)[0]
 
 
 def _grad_sq(f: np.ndarray) -> np.ndarray:
@@ -92,9 +98,9 @@ def scene_flow_energy(
     fx, fy = xx + w[..., 0], yy + w[..., 1]
     mx0 = xx - dd
     mx1 = fx - dd - dp
-    r0w = derivatives.warp(r0, mx0, yy)
-    r1w = derivatives.warp(r1, mx1, fy)
-    l1w = derivatives.warp(l1, fx, fy)
+    r0w = _warp(r0, mx0, yy)
+    r1w = _warp(r1, mx1, fy)
+    l1w = _warp(l1, fx, fy)
     e1 = r0w - l0
     e3 = r1w - r0w
     e4 = r1w - l1w
