@@ -83,11 +83,20 @@ def test_bad_input_raises(kwargs: dict, message: str) -> None:
         scene_flow_velocity(args.pop("flow"), args.pop("d"), args.pop("d_change"), **args)
 
 
-def test_moving_plane_velocity_within_5_percent_and_3_degrees() -> None:
-    """Issue 3 acceptance: plane at Z = 2 m (d = 78 px), V = (0.6, -0.3, -0.9) m/s,
+@pytest.mark.parametrize(
+    ("z0", "velocity", "seed"),
+    [
+        (2.0, (0.6, -0.3, -0.9), 0),  # oblique, approaching
+        (1.9, (0.0, 0.0, 1.5), 4),  # straight away from the cameras: all in d'
+    ],
+)
+def test_moving_plane_velocity_within_5_percent_and_3_degrees(
+    z0: float, velocity: tuple[float, float, float], seed: int
+) -> None:
+    """Issue 3 acceptance: textured plane at Z ~ 2 m (d ~ 78-82 px) moving with a known V,
     s = 780 px, b = 0.2 m, 320x240, 30 Hz; w from our Brox flow, d and d' from Eq. 6
     initialised with the minimum disparity d0 = 60 px (Z <= 2.6 m)."""
-    scene = moving_plane()
+    scene = moving_plane(z0=z0, velocity=velocity, seed=seed)
     flow = brox_optical_flow(scene.il0, scene.il1)
     d, dp = joint_disparity(scene.il0, scene.ir0, scene.il1, scene.ir1, flow, d0=60.0)
     vel, valid = scene_flow_velocity(flow, d, dp, principal_point=PP, camera_constant=S_PX,
