@@ -375,7 +375,10 @@ def joint_disparity(
     if init is None:
         d = np.full(coarsest, np.float32(d0) * np.float32(coarsest[1] / shape[1]), np.float32)
     else:
-        d = pyramid.resize_field(init, coarsest, is_motion=True)
+        # Area averaging, not point sampling: an SGM estimate carries speckles and filled
+        # holes that a bilinear sample of a few pixels would pass on to the coarsest level.
+        d = cv2.resize(init, (coarsest[1], coarsest[0]), interpolation=cv2.INTER_AREA)
+        d = np.ascontiguousarray(d * np.float32(coarsest[1] / shape[1]), dtype=np.float32)
     dp = np.zeros(coarsest, np.float32)
     for level in range(len(shapes) - 1, -1, -1):
         lshape = shapes[level]
