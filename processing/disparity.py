@@ -25,7 +25,10 @@ are resampled with disparities scaled by the width ratio; at each level, outer w
 re-sample the right images at the current disparities; inner fixed-point iterations
 freeze ("lag") the psi' weights, and the linear system in (d, d') - a 2x2 block per pixel
 plus two diffusion terms with their own weights gamma1 psi'_d and gamma2 psi'_d' - is
-solved with the compact red-black SOR of :mod:`processing.redblack`.
+solved with the compact red-black SOR of :mod:`processing.redblack`. Unlike the flow, the
+images are sampled with a Catmull-Rom cubic (:func:`processing.derivatives.
+warp2_catmull_rom`): OpenCV's cubic biases fractional shifts by up to 0.04 px, which would
+go straight into d' and hence into V_Z (Eq. 4).
 """
 
 from __future__ import annotations
