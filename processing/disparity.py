@@ -27,7 +27,7 @@ freeze ("lag") the psi' weights, and the linear system in (d, d') - a 2x2 block 
 plus two diffusion terms with their own weights gamma1 psi'_d and gamma2 psi'_d' - is
 solved with the compact red-black SOR of :mod:`processing.redblack`. Unlike the flow, the
 images are sampled with a Catmull-Rom cubic (:func:`processing.derivatives.
-warp2_catmull_rom`): OpenCV's cubic biases fractional shifts by up to 0.04 px, which would
+warp_dx_catmull_rom`): OpenCV's cubic biases fractional shifts by up to 0.04 px, which would
 go straight into d' and hence into V_Z (Eq. 4).
 """
 
@@ -144,6 +144,63 @@ def disparity_data_terms(
             o2[x] = c12 * rd0[x] + c22 * rdp0[x] + (q3 * re3[x] + q4 * re4[x]) * b
 
 
+@numba.njit(cache=True, fastmath=True)
+def warp_residuals(
+    il0: np.ndarray,
+    l0x: np.ndarray,
+    l1w: np.ndarray,
+    l1wx: np.ndarray,
+    m_l1: np.ndarray,
+    r0w: np.ndarray,
+    r0wx: np.ndarray,
+    r1w: np.ndarray,
+    r1wx: np.ndarray,
+    mx0: np.ndarray,
+    mx1: np.ndarray,
+    my1: np.ndarray,
+    e1: np.ndarray,
+    e3: np.ndarray,
+    e4: np.ndarray,
+    g0: np.ndarray,
+    g1: np.ndarray,
+    m1: np.ndarray,
+    m3: np.ndarray,
+    m4: np.ndarray,
+) -> None:
+    """Data terms E1, E3, E4 (Eq. 3) at the current warp, derivatives and masks, per pixel.
+
+    Inputs are the warped images (``r0w`` = I_R(x - d, t0), ``r1w`` = I_R(x + u - d - d',
+    y + v, t1), ``l1w`` = I_L(x + w, t1)) with their x-derivatives, the sample positions
+    and ``m_l1`` (1 where x + w is inside). The derivative of each warped right image is
+    averaged with that of the image it should match (Brox's symmetric linearisation, as
+    in the flow solver). A mask is 1 where every sample of that term lies inside.
+    """
+    h, w = il0.shape
+    wm = np.float32(w - 1)
+    hm = np.float32(h - 1)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    half = np.float32(0.5)
+    for y in range(h):
+        a0, a0x, b1, b1x, ml = il0[y], l0x[y], l1w[y], l1wx[y], m_l1[y]
+        c0, c0x, c1, c1x = r0w[y], r0wx[y], r1w[y], r1wx[y]
+        p0, p1, q1 = mx0[y], mx1[y], my1[y]
+        o1, o3, o4, og0, og1 = e1[y], e3[y], e4[y], g0[y], g1[y]
+        om1, om3, om4 = m1[y], m3[y], m4[y]
+        for x in range(w):
+            in0 = one if (p0[x] >= zero and p0[x] <= wm) else zero
+            in1 = one if (p1[x] >= zero and p1[x] <= wm and q1[x] >= zero
+                          and q1[x] <= hm) else zero
+            o1[x] = c0[x] - a0[x]
+            o3[x] = c1[x] - c0[x]
+            o4[x] = c1[x] - b1[x]
+            og0[x] = half * (c0x[x] + a0x[x])
+            og1[x] = half * (c1x[x] + b1x[x])
+            om1[x] = in0
+            om3[x] = in0 * in1
+            om4[x] = in1 * ml[x]
+
+
 @numba.njit(cache=True)
 def _lagged_iterations(
     e1: np.ndarray,
@@ -227,30 +284,22 @@ def _level_disparity(
     """Refine (d, dp) in place at one pyramid level (outer warps x lagged FP x SOR)."""
     xx, yy = derivatives.pixel_grid(il0.shape)
     l0x = derivatives.dx(il0)
-    r0x = derivatives.dx(ir0)
-    r1x = derivatives.dx(ir1)
-    # Catmull-Rom warps (not OpenCV's a = -0.75 cubic): their phase-dependent bias would
-    # show up directly in d' (see derivatives.warp2_catmull_rom).
-    warp2 = derivatives.warp2_catmull_rom
+    # Catmull-Rom warps (not OpenCV's a = -0.75 cubic, whose phase-dependent bias would
+    # show up directly in d'), each with the exact x-derivative of the interpolant.
+    warp_dx = derivatives.warp_dx_catmull_rom
     # The flow is fixed: I_L(x + w, t1) and its derivative are warped once per level.
     fx, fy = xx + u, yy + v
-    l1w, l1wx = warp2(il1, derivatives.dx(il1), fx, fy)
+    l1w, l1wx = warp_dx(il1, fx, fy)
     m_l1 = derivatives.inside_mask(fx, fy)
+    e1, e3, e4, g0, g1, m1, m3, m4 = (np.empty(il0.shape, np.float32) for _ in range(8))
     for _ in range(n_warps):
         mx0 = xx - d
-        m1 = derivatives.inside_mask(mx0, yy)
-        r0w, r0wx = warp2(ir0, r0x, mx0, yy)
         mx1 = fx - d - dp
-        m_r1 = derivatives.inside_mask(mx1, fy)
-        r1w, r1wx = warp2(ir1, r1x, mx1, fy)
-        e1 = r0w - il0
-        e3 = r1w - r0w
-        e4 = r1w - l1w
-        # Averaging the derivative of each warped right image with that of the image it
-        # should match (Brox's symmetric linearisation, as in the flow solver).
-        g0 = 0.5 * (r0wx + l0x)
-        g1 = 0.5 * (r1wx + l1wx)
-        _lagged_iterations(e1, e3, e4, g0, g1, m1, m1 * m_r1, m_r1 * m_l1, d, dp,
+        r0w, r0wx = warp_dx(ir0, mx0, yy)
+        r1w, r1wx = warp_dx(ir1, mx1, fy)
+        warp_residuals(il0, l0x, l1w, l1wx, m_l1, r0w, r0wx, r1w, r1wx, mx0, mx1, fy,
+                       e1, e3, e4, g0, g1, m1, m3, m4)
+        _lagged_iterations(e1, e3, e4, g0, g1, m1, m3, m4, d, dp,
                            gamma1, gamma2, eps, n_inner, n_sor, omega)
 
 

@@ -29,7 +29,7 @@ def _psi(s2: np.ndarray, eps: float) -> np.ndarray:
 
 def _warp(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     # The solver's interpolation (Catmull-Rom), so U_SF judges the fields it produced.
-    return derivatives.warp2_catmull_rom(image, image, map_x, map_y)[0]
+    return derivatives.warp_dx_catmull_rom(image, map_x, map_y)[0]
 
 
 def _grad_sq(f: np.ndarray) -> np.ndarray:
