@@ -105,6 +105,8 @@ def _good():
         (lambda a: {"gamma2": -1.0}, "gamma2"),
         (lambda a: {"omega": 2.0}, "omega"),
         (lambda a: {"n_sor": 0}, "n_sor"),
+        (lambda a: {"n_inner_finest": 0}, "n_inner_finest"),
+        (lambda a: {"n_warps": 1.5}, "n_warps"),
         (lambda a: {"pyramid_factor": 1.0}, "pyramid_factor"),
         (lambda a: {"d0": float("nan")}, "d0"),
         (lambda a: {"initial_disparity": np.zeros((3, 3), np.float32)}, "initial_disparity"),
