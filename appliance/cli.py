@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.calibrate",
     "appliance.commands.eval_footage",
     "appliance.commands.simulate",
+    "appliance.commands.eval_stereo",
 )
 
 EXIT_OK = 0
