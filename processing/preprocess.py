@@ -207,8 +207,12 @@ class PreprocessedTriple:
         The same differences in radiance units before denoising and normalisation (for a
         :class:`DiffScaleTracker`).
     shifts : ((float, float), (float, float))
-        Jitter (dx, dy) in px of t1 relative to t0 and of t2 relative to t1 (zeros when
-        registration is off). Pass ``shifts[1]`` as ``shift01`` of the next triple.
+        Jitter (dx, dy) in px of t1 relative to t0 and of t2 relative to t1 that was
+        removed (zeros when registration is off or rejected). Pass ``shifts[1]`` as
+        ``shift01`` of the next triple.
+    rejected_shifts : int
+        How many estimated shifts of this triple (0-2) exceeded ``max_shift_px`` and were
+        therefore not applied.
     """
 
     diff0: np.ndarray
@@ -216,6 +220,7 @@ class PreprocessedTriple:
     raw0: np.ndarray
     raw1: np.ndarray
     shifts: tuple[tuple[float, float], tuple[float, float]]
+    rejected_shifts: int = 0
 
 
 def preprocess_camera(
@@ -227,6 +232,7 @@ def preprocess_camera(
     register: bool = True,
     denoise_lambda: float = 2.0,
     shift01: tuple[float, float] | None = None,
+    max_shift_px: float = 1.0,
 ) -> PreprocessedTriple:
     """Steps 1-6 of the module docstring for one camera and three consecutive frames.
 
@@ -247,6 +253,12 @@ def preprocess_camera(
     shift01 : (float, float) or None
         Known shift of t1 relative to t0 (e.g. the t1 -> t2 shift of the previous triple,
         shifts compose additively); saves one registration.
+    max_shift_px : float
+        Largest plausible jitter in px. The registration assumes a static textured
+        background; in front of a featureless one (sky, a uniform wall, the synthetic
+        data) it locks onto the moving gas instead and would cancel the very motion we
+        measure. Camera jitter is sub-pixel (paper Sec. 4.1), so an estimate larger than
+        this is treated as gas motion: not applied, and counted in ``rejected_shifts``.
 
     Returns
     -------
@@ -269,9 +281,19 @@ def preprocess_camera(
         imgs = [apply_rectification(im, maps[0], maps[1]) for im in imgs]
     s01: tuple[float, float] = (0.0, 0.0)
     s12: tuple[float, float] = (0.0, 0.0)
+    rejected = 0
     if register:
-        s01 = shift01 if shift01 is not None else estimate_shift(imgs[0], imgs[1])
-        s12 = estimate_shift(imgs[1], imgs[2])
+        max_shift = check_positive(max_shift_px, "max_shift_px")
+
+        def plausible(shift: tuple[float, float]) -> tuple[float, float]:
+            nonlocal rejected
+            if float(np.hypot(*shift)) <= max_shift:
+                return shift
+            rejected += 1
+            return (0.0, 0.0)
+
+        s01 = shift01 if shift01 is not None else plausible(estimate_shift(imgs[0], imgs[1]))
+        s12 = plausible(estimate_shift(imgs[1], imgs[2]))
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)
@@ -279,7 +301,7 @@ def preprocess_camera(
     raw1 = imgs[1] - imgs[2]
     diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
     diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
-    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12))
+    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), rejected)
 
 
 def preprocess_stereo(
@@ -295,6 +317,7 @@ def preprocess_stereo(
     register: bool = True,
     denoise_lambda: float = 2.0,
     shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+    max_shift_px: float = 1.0,
 ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
     """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
 
@@ -309,7 +332,7 @@ def preprocess_stereo(
         Shared normalisation scale in radiance units.
     curves, maps, shift01 : pairs (left, right)
         Per-camera characteristic curve, rectification maps and known t0 -> t1 shift.
-    register, denoise_lambda
+    register, denoise_lambda, max_shift_px
         As in :func:`preprocess_camera`, the same for both cameras.
 
     Returns
@@ -331,6 +354,7 @@ def preprocess_stereo(
             register=register,
             denoise_lambda=denoise_lambda,
             shift01=shift01[k],
+            max_shift_px=max_shift_px,
         )
         for k, frames in enumerate((left, right))
     )

@@ -189,3 +189,26 @@ def test_preprocess_stereo_shares_the_scale_across_cameras() -> None:
     np.testing.assert_allclose(left.diff1, right.diff1, atol=2e-4)
     with pytest.raises(ValueError, match="differ in shape"):
         preprocess_stereo(radiance, [r[:, :-1] for r in radiance], scale=0.5, register=False)
+
+
+def test_registration_does_not_cancel_gas_motion_over_a_featureless_background() -> None:
+    """Uniform background, one textured gas patch moving 1.5 px per frame.
+
+    Registration can only lock onto the gas there; the estimate exceeds any plausible
+    jitter, so it must be rejected (counted) and the gas motion left in the images.
+    """
+    h, w = 96, 128
+    rng = np.random.default_rng(7)
+    patch = warp_translation(_scene(h, w, seed=8) - 10.0, (0.0, 0.0))
+    mask = np.zeros((h, w), np.float32)
+    mask[30:70, 40:90] = 1.0
+    gas = patch * mask
+    frames = [
+        (100.0 + warp_translation(gas, (-1.5 * t, 0.0))).astype(np.float32) for t in range(3)
+    ]
+    frames = [f + 0.001 * rng.standard_normal((h, w)).astype(np.float32) for f in frames]
+    out = preprocess_camera(frames, scale=0.5, register=True, denoise_lambda=0.0)
+    assert out.rejected_shifts == 2
+    assert out.shifts == ((0.0, 0.0), (0.0, 0.0))
+    plain = preprocess_camera(frames, scale=0.5, register=False, denoise_lambda=0.0)
+    np.testing.assert_array_equal(out.diff0, plain.diff0)
