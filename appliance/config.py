@@ -195,6 +195,11 @@ class RecordingConfig:
         "messages the recorder queue holds before it drops (>= 2 s of 2 x 30 Hz frames)",
         4096, min=16, max=1_000_000,
     )
+    fields_every: int = _opt(
+        "record the full result fields (flow, disparity, velocity, mask) of every N-th "
+        "processed pair; summaries are recorded for every pair and the raw frames allow "
+        "any field to be recomputed with `ogiflow replay`", 10, min=1, max=1_000_000,
+    )
 
 
 @dataclass(frozen=True)
@@ -230,6 +235,31 @@ class HealthConfig:
 
 
 @dataclass(frozen=True)
+class SimulationConfig:
+    """The synthetic gas scene that simulated cameras show (ignored for real cameras).
+
+    The plume is simulated once (Stable Fluids, paper ref. [22]) with the simulated
+    anemometer's mean wind, rendered into both cameras, cached on disk and looped.
+    """
+
+    frames: int = _opt("length of the pre-rendered loop, frames (30 Hz)", 240, min=10,
+                       max=100_000)
+    voxel_m: float = _opt("voxel size of the fluid grid, m (smaller = finer and slower)",
+                          0.04, min=0.005, max=0.2)
+    distance_m: float = _opt("distance of the plume from the cameras, m", 5.5, gt=0.5,
+                             max=100.0)
+    baseline_m: float = _opt("stereo baseline of the simulated cameras, m", 0.3, gt=0.0,
+                             max=10.0)
+    release_rate_g_s: float = _opt("gas release rate of the simulated leak, g/s", 3.0,
+                                   gt=0.0, max=1000.0)
+    seed: int = _opt("random seed of the simulated turbulence", 7, min=0)
+    cache_dir: Path | None = _opt(
+        "where rendered scenes are cached; null = $XDG_CACHE_HOME/ogiflow or "
+        "~/.cache/ogiflow", None,
+    )
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole appliance configuration (one YAML file)."""
 
@@ -244,6 +274,8 @@ class Config:
     calibration: Path | None = _opt(
         "stereo calibration file (YAML from `ogiflow calibrate stereo`); null = none", None,
     )
+    simulation: SimulationConfig = _opt("scene of the simulated cameras",
+                                        factory=SimulationConfig)
 
 
 # --------------------------------------------------------------------------- validation

@@ -1,0 +1,613 @@
+"""The appliance daemon: devices, pairing, ring buffer, workers, recorder, live view, health.
+
+Data flow (DESIGN.md)::
+
+    camera L thread --Frame--\\                        /--> recorder thread (every raw frame,
+    camera R thread --Frame---> pairing thread ------+        every wind sample, pair, result)
+    anemometer reader --WindSample--> wind history --+--> ring buffer --> worker processes
+                                                     \\<------ results thread <-----------/
+                                                      --> live view thread (drops when full)
+
+Acquisition and recording never wait: camera threads hand frames to the pairing thread
+through a bounded queue and to the recorder's own queue (both drop and count when full,
+which they never are in normal operation); the pairing thread writes pairs into the
+shared-memory ring, which overwrites the oldest slot instead of waiting; workers take the
+newest consecutive windows and count what they skipped; the live view has its own small
+queue that drops when full.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import multiprocessing as mp
+import queue
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from appliance import schemas
+from appliance.config import Config
+from appliance.pipeline import WorkerResult, worker_main
+from processing.chain import ChainParameters, StereoGeometry
+
+log = logging.getLogger("ogiflow")
+
+SIDES = ("left", "right")
+#: Exit codes of ``ogiflow run`` (also in the README).
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_CONFIG = 2
+
+
+def directional_angles(v: np.ndarray) -> tuple[float, float, float] | None:
+    """Angles of a vector to X, Y, Z in degrees (paper footnote 1); None for a zero vector."""
+    n = float(np.linalg.norm(v))
+    if not np.isfinite(n) or n == 0.0:
+        return None
+    c = np.clip(np.asarray(v, dtype=np.float64) / n, -1.0, 1.0)
+    return tuple(float(a) for a in np.degrees(np.arccos(c)))  # type: ignore[return-value]
+
+
+@dataclass
+class _Counters:
+    """Counters shared by the daemon's threads (simple ints: the GIL makes += safe enough
+    for statistics; nothing depends on exact values across threads)."""
+
+    frames: dict[str, int] = field(default_factory=lambda: {s: 0 for s in SIDES})
+    frame_queue_drops: int = 0
+    camera_timeouts: int = 0
+    camera_reconnects: int = 0
+    pairs: int = 0
+    results: int = 0
+    result_errors: int = 0
+    skipped_pairs: int = 0
+    wind_samples: int = 0
+
+
+class Appliance:
+    """One run of the appliance (``ogiflow run`` and the systemd service).
+
+    Parameters
+    ----------
+    cfg : Config
+        Validated configuration.
+    duration_s : float or None
+        Stop after this many seconds (None: until SIGTERM/SIGINT).
+    """
+
+    def __init__(self, cfg: Config, *, duration_s: float | None = None) -> None:
+        self.cfg = cfg
+        self.duration_s = duration_s
+        self.stop_event = threading.Event()
+        self.counters = _Counters()
+        self._threads: list[threading.Thread] = []
+        self._frame_q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=512)
+        self._pair_frame_ids: collections.OrderedDict[int, int | None] = collections.OrderedDict()
+        self._pair_lock = threading.Lock()
+        self._t_wall0 = time.time_ns() - time.monotonic_ns()
+        self.recorder: Any = None
+        self.live: Any = None
+        self.ring: Any = None
+        self.truth: Any = None
+        self.history: Any = None
+        self.geometry: StereoGeometry | None = None
+        self.live_url: str | None = None
+        self.truth_log: list[tuple[int, np.ndarray | None, dict[str, Any]]] = []
+
+    # ------------------------------------------------------------------ helpers
+
+    def wall_ns(self, mono_ns: int) -> int:
+        """Wall-clock UNIX ns of a host monotonic time (offset fixed at start)."""
+        return int(mono_ns + self._t_wall0)
+
+    def _record_json(self, topic: str, schema: schemas.MessageSchema, obj: dict[str, Any],
+                     mono_ns: int) -> None:
+        if self.recorder is None:
+            return
+        payload = schemas.encode_json(schema, obj, validate=False)
+        self.recorder.record(topic, schema, payload, self.wall_ns(mono_ns), mono_ns)
+
+    # ------------------------------------------------------------------ set-up
+
+    def _simulated_scene(self, wind_camera: tuple[float, float, float]) -> Path | None:
+        """Render (once) and return the scene folder when a camera is simulated."""
+        from appliance.simscene import SceneTruth, ensure_scene
+
+        cams = (self.cfg.cameras.left, self.cfg.cameras.right)
+        if not any(c.backend == "simulated" and "source" not in c.options for c in cams):
+            return None
+        folder = ensure_scene(self.cfg.simulation, wind_camera)
+        self.truth = SceneTruth(folder)
+        return folder
+
+    def _geometry(self, scene: Path | None) -> StereoGeometry:
+        from processing.calibration import load_calibration
+
+        if self.cfg.calibration is not None:
+            return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
+        if self.truth is not None:
+            cam = self.truth.camera
+            return StereoGeometry(camera_constant=float(cam["s_px"]),
+                                  principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
+                                  baseline=float(cam["b_m"]),
+                                  image_size=(int(cam["width"]), int(cam["height"])))
+        raise ValueError(
+            "calibration: a stereo calibration file is required for real cameras "
+            "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
+        )
+
+    def _make_camera(self, side: str, scene: Path | None) -> Any:
+        from drivers.camera.registry import create_camera
+
+        cam_cfg = getattr(self.cfg.cameras, side)
+        options = dict(cam_cfg.options)
+        if cam_cfg.backend == "simulated":
+            options.setdefault("side", side)
+            options.setdefault("fps", cam_cfg.frame_rate_hz)
+            if scene is not None:
+                options.setdefault("source", str(scene))
+            # The two cameras are not triggered together (paper Sec. 4.1).
+            options.setdefault("phase_s", 0.0 if side == "left" else 0.004)
+            options.setdefault("seed", 1 if side == "left" else 2)
+        return create_camera(cam_cfg.backend, **options)
+
+    # ------------------------------------------------------------------ threads
+
+    def _camera_loop(self, side: str, scene: Path | None) -> None:
+        """Grab frames of one camera forever; reconnect with back-off when it vanishes."""
+        from drivers.camera import mcap_format
+        from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
+
+        backoff = 0.5
+        stream = self.health.stream(f"cam_{side}")
+        cache: dict[str, schemas.MessageSchema] = {}
+        while not self.stop_event.is_set():
+            camera = None
+            try:
+                camera = self._make_camera(side, scene)
+                camera.open()
+                camera.start()
+                backoff = 0.5
+                while not self.stop_event.is_set():
+                    try:
+                        frame = camera.grab(timeout=0.5)
+                    except CameraTimeout:
+                        self.counters.camera_timeouts += 1
+                        continue
+                    stream.tick()
+                    self.watchdog_frame()
+                    self.counters.frames[side] += 1
+                    if self.recorder is not None:
+                        for m in mcap_format.frame_to_messages(side, frame,
+                                                               self.wall_ns(frame.host_ns)):
+                            schema = cache.get(m.schema_name)
+                            if schema is None:
+                                schema = schemas.MessageSchema(m.schema_name, m.schema_encoding,
+                                                               m.schema_data, m.message_encoding)
+                                cache[m.schema_name] = schema
+                            self.recorder.record(m.topic, schema, m.data, m.log_time,
+                                                 m.publish_time)
+                    try:
+                        self._frame_q.put_nowait((side, frame))
+                    except queue.Full:
+                        self.counters.frame_queue_drops += 1
+            except EndOfStream:
+                log.info("camera %s: end of stream", side)
+                return
+            except (CameraError, OSError, ValueError) as exc:
+                if self.stop_event.is_set():
+                    break
+                self.counters.camera_reconnects += 1
+                log.warning("camera %s: %s; reconnecting in %.1f s", side, exc, backoff)
+                self.stop_event.wait(backoff)
+                backoff = min(backoff * 2, 10.0)
+            finally:
+                if camera is not None:
+                    try:
+                        camera.close()
+                    except (CameraError, OSError):
+                        pass
+
+    def watchdog_frame(self) -> None:
+        if self.watchdog is not None:
+            self.watchdog.frame_arrived()
+
+    def _pairing_loop(self) -> None:
+        """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
+        from appliance.clock import ClockModel
+        from appliance.pairing import StereoPairer
+
+        period = int(1e9 / self.cfg.cameras.left.frame_rate_hz)
+        tol = self.cfg.pairing.tolerance_s
+        pairer: StereoPairer[Any] = StereoPairer(
+            period, tolerance_ns=None if tol is None else int(tol * 1e9))
+        clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
+        stream = self.health.stream("pairs")
+        index = 0
+        while True:
+            try:
+                side, frame = self._frame_q.get(timeout=0.05)
+            except queue.Empty:
+                if self.stop_event.is_set():
+                    break
+                pairs = pairer.poll(time.monotonic_ns())
+            else:
+                t = clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
+                pairs = pairer.push(side, t, frame, now_ns=time.monotonic_ns())
+            for p in pairs:
+                self._write_pair(index, p)
+                stream.tick()
+                index += 1
+        self.unpaired = {s: pairer.stats.unpaired(s) for s in SIDES}
+
+    def _write_pair(self, index: int, p: Any) -> None:
+        left, right = p.left, p.right
+        t_mono = p.time_ns
+        self.ring.write(left.image, right.image, pair_index=index, left_seq=left.seq,
+                        right_seq=right.seq, t_left_mono_ns=p.left_ns, t_right_mono_ns=p.right_ns,
+                        t_wall_ns=self.wall_ns(t_mono))
+        self.counters.pairs += 1
+        with self._pair_lock:
+            self._pair_frame_ids[index] = left.device_frame_id
+            while len(self._pair_frame_ids) > 4 * self.cfg.ring.capacity + 64:
+                self._pair_frame_ids.popitem(last=False)
+        self._record_json("/pairs", schemas.STEREO_PAIR, {
+            "pair_index": index, "left_seq": left.seq, "right_seq": right.seq,
+            "t_left_mono_ns": p.left_ns, "t_right_mono_ns": p.right_ns, "t_mono_ns": t_mono,
+            "t_wall_ns": self.wall_ns(t_mono), "dt_ns": p.residual_ns,
+            "t_left_device_ns": left.device_ts_ns, "t_right_device_ns": right.device_ts_ns,
+        }, t_mono)
+
+    def _on_wind(self, sample: Any) -> None:
+        """Reader-thread callback: record the raw sample (never blocks)."""
+        self.counters.wind_samples += 1
+        self.health.stream("wind").tick()
+        self._record_json("/wind/raw", schemas.WIND_SAMPLE, {
+            "t_mono_ns": sample.host_ns, "t_wall_ns": self.wall_ns(sample.host_ns),
+            "t_device": sample.counter, "sensor": self.cfg.anemometer.protocol,
+            "u": _finite(sample.u), "v": _finite(sample.v), "w": _finite(sample.w),
+            "speed_of_sound_m_s": _finite_or_none(sample.speed_of_sound),
+            "sonic_temperature_c": _finite_or_none(sample.sonic_temperature),
+            "status": sample.status_code, "valid": bool(sample.valid),
+        }, sample.host_ns)
+
+    def _results_loop(self, results: Any) -> None:
+        while True:
+            try:
+                res: WorkerResult = results.get(timeout=0.1)
+            except queue.Empty:
+                if self.stop_event.is_set() and self._workers_done.is_set():
+                    break
+                continue
+            try:
+                self._handle_result(res)
+            except Exception:
+                log.exception("result of pair %s could not be handled", res.pair_indices)
+
+    def _handle_result(self, res: WorkerResult) -> None:
+        from appliance.live import LiveFrame
+
+        self.counters.skipped_pairs += res.skipped
+        t1 = res.t_mono_ns[1]
+        latency_ms = (res.done_mono_ns - res.t_mono_ns[2]) / 1e6
+        self.health.latency("processing").add(latency_ms)
+        self.health.stream("results").tick()
+        if res.error is not None:
+            self.counters.result_errors += 1
+            log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
+            return
+        self.counters.results += 1
+        s = res.summary
+        flags = list(s.get("flags", []))
+        if res.rejected_shifts:
+            flags.append("registration_rejected")
+        summary = {
+            "t_mono_ns": t1, "t_wall_ns": self.wall_ns(t1), "pair_index": res.pair_indices[1],
+            "gas_pixels": int(s.get("gas_pixel_count") or 0),
+            "mean_velocity_m_s": s.get("mean_velocity"), "speed_m_s": s.get("speed"),
+            "angles_deg": s.get("angles_deg"), "c_usf": s.get("c_usf"),
+            "latency_ms": latency_ms, "skipped_pairs": int(res.skipped),
+            "valid": bool(s.get("valid")), "flags": flags,
+        }
+        self._record_json("/sceneflow/summary", schemas.SCENEFLOW_SUMMARY, summary, t1)
+        wind = self._wind_at(t1, res.pair_indices[1])
+        truth = self._truth_for(res.pair_indices[0])
+        self.truth_log.append((t1, truth, summary))
+        every = self.cfg.recording.fields_every
+        if self.recorder is not None and self.counters.results % every == 0:
+            self._record_fields(res, t1)
+        if self.live is not None:
+            speed = summary["speed_m_s"]
+            self.live.push(LiveFrame(
+                frame=res.pair_indices[1], t_capture_ns=self.wall_ns(t1),
+                diff_left=res.diff_left, diff_right=res.diff_right, flow=res.flow,
+                disparity=np.where(res.valid, res.disparity, np.nan).astype(np.float32),
+                gas_mask=res.gas_mask, points3d=res.points3d, velocity3d=res.velocity3d,
+                gas_speed_m_s=speed if summary["valid"] else None,
+                gas_angles_deg=tuple(summary["angles_deg"]) if summary["valid"]
+                and summary["angles_deg"] else None,
+                wind_speed_m_s=None if wind is None else float(np.linalg.norm(wind)),
+                wind_angles_deg=None if wind is None else directional_angles(wind),
+                truth_speed_m_s=None if truth is None else float(np.linalg.norm(truth)),
+                truth_angles_deg=None if truth is None else directional_angles(truth),
+            ))
+
+    def _wind_at(self, t_mono: int, pair_index: int) -> np.ndarray | None:
+        if self.history is None:
+            return None
+        at = self.history.at(t_mono)
+        if not at.ok:
+            return None
+        v = np.asarray(at.vector, dtype=np.float64)
+        self._record_json("/wind/camera", schemas.WIND_CAMERA, {
+            "t_mono_ns": t_mono, "t_wall_ns": self.wall_ns(t_mono), "pair_index": pair_index,
+            "velocity_m_s": [float(x) for x in v], "speed_m_s": float(np.linalg.norm(v)),
+            "angles_deg": directional_angles(v), "interpolated": at.span_ns > 0,
+        }, t_mono)
+        return v
+
+    def _truth_for(self, pair_index0: int) -> np.ndarray | None:
+        """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""
+        if self.truth is None:
+            return None
+        with self._pair_lock:
+            k0 = self._pair_frame_ids.get(pair_index0)
+            k2 = self._pair_frame_ids.get(pair_index0 + 2)
+        if k0 is None or k2 is None or k2 - k0 != 2:
+            return None  # a dropped frame: the triple is not three consecutive scene frames
+        return self.truth.mean_velocity(k0)
+
+    def _record_fields(self, res: WorkerResult, t1: int) -> None:
+        import cv2
+
+        wall = self.wall_ns(t1)
+        for side, img in (("left", res.diff_left), ("right", res.diff_right)):
+            ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
+            if ok:
+                payload = schemas.compressed_image(jpg.tobytes(), wall, f"camera_{side}")
+                self.recorder.record(f"/cam/{side}/diff", schemas.COMPRESSED_IMAGE, payload,
+                                     wall, t1)
+        grids = (
+            ("/sceneflow/flow", res.flow, ("u", "v")),
+            ("/sceneflow/disparity", np.stack([res.disparity, res.disparity_change], -1),
+             ("d", "d_change")),
+            ("/sceneflow/velocity", res.velocity, ("vx", "vy", "vz")),
+        )
+        for topic, arr, names in grids:
+            self.recorder.record(topic, schemas.GRID,
+                                 schemas.grid(arr, wall, "camera_left", names), wall, t1)
+        ok, png = cv2.imencode(".png", res.gas_mask.astype(np.uint8) * 255)
+        if ok:
+            payload = schemas.compressed_image(png.tobytes(), wall, "camera_left", "png")
+            self.recorder.record("/sceneflow/mask", schemas.COMPRESSED_IMAGE, payload, wall, t1)
+
+    # ------------------------------------------------------------------ run
+
+    def run(self) -> int:
+        from appliance.health import (
+            HealthMonitor,
+            HealthReporter,
+            disk_free_source,
+            live_sink,
+            log_sink,
+            mcap_sink,
+        )
+        from appliance.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+
+        cfg = self.cfg
+        self.health = HealthMonitor(cfg.health.stall_s)
+        notifier = SdNotifier()
+        period = watchdog_period_s() if cfg.health.watchdog else None
+        self.watchdog = Watchdog(notifier, period, cfg.health.stall_s) if period else None
+        self.unpaired = {s: 0 for s in SIDES}
+
+        reader = self._start_anemometer_and_history()
+        wind_cam = self._mean_simulated_wind()
+        scene = self._simulated_scene(wind_cam)
+        self.geometry = self._geometry(scene)
+        sim_defaults: dict[str, Any] = {}
+        if scene is not None:
+            # The synthetic scene has no jitter and a featureless background (the paper's
+            # ideal conditions): registration could only lock onto the gas. The minimum
+            # disparity d0 is that of twice the plume distance.
+            s_px, b_m = self.geometry.camera_constant, self.geometry.baseline
+            sim_defaults = {"register": False,
+                            "d0": s_px * b_m / (2.0 * cfg.simulation.distance_m)}
+        params = ChainParameters.from_mapping({**sim_defaults, **cfg.processing.parameters})
+
+        if cfg.recording.enabled:
+            from appliance.mcap_recovery import recover_unfinished
+            from appliance.recorder import Recorder, file_metadata
+
+            cfg.recording.dir.mkdir(parents=True, exist_ok=True)
+            for rep in recover_unfinished(cfg.recording.dir):
+                log.warning("recovered %s after a crash", rep)
+            cal_text = (Path(cfg.calibration).read_text() if cfg.calibration is not None
+                        else None)
+            self.recorder = Recorder(cfg.recording, file_metadata(cfg, cal_text)).start()
+        if cfg.live.mode != "off":
+            from appliance.live import LiveView
+
+            self.live = LiveView(cfg.live).start()
+            self.live_url = getattr(self.live, "url", None)
+
+        from appliance.ring import PairRing
+
+        w, h = self.geometry.image_size
+        self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
+        ctx = mp.get_context("spawn")
+        results = ctx.Queue(maxsize=64)
+        stop_workers = ctx.Event()
+        self._workers_done = threading.Event()
+        workers = []
+        if cfg.processing.enabled:
+            for i in range(cfg.processing.workers):
+                p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                                args=(i, self.ring.handle(), results, stop_workers,
+                                      self.geometry, params), daemon=True)
+                p.start()
+                workers.append(p)
+        else:
+            self._workers_done.set()
+
+        sinks = [log_sink()]
+        if self.recorder is not None:
+            sinks.append(mcap_sink(self.recorder))
+        if self.live is not None:
+            sinks.append(live_sink(self.live))
+        self.health.add_counters(self._health_counters)
+        if cfg.recording.enabled:
+            self.health.add_gauges(disk_free_source(cfg.recording.dir))
+        reporter = HealthReporter(self.health, cfg.health.interval_s, sinks, notifier,
+                                  self.watchdog).start()
+
+        self._spawn(self._pairing_loop, "pairing")
+        self._spawn(self._results_loop, "results", results)
+        for side in SIDES:
+            self._spawn(self._camera_loop, f"camera-{side}", side, scene)
+
+        previous = {sig: signal.signal(sig, self._on_signal)
+                    for sig in (signal.SIGTERM, signal.SIGINT)}
+        notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
+        if getattr(self, "_banner", False):
+            import sys
+
+            where = self.live_url or "off"
+            rec = str(cfg.recording.dir) if cfg.recording.enabled else "off"
+            sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
+                             f"(Ctrl-C or SIGTERM stops)\n")
+        t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
+        try:
+            while not self.stop_event.is_set():
+                timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
+                self.stop_event.wait(timeout)
+                if t_end is not None and time.monotonic() >= t_end:
+                    break
+        finally:
+            notifier.stopping()
+            self.stop_event.set()
+            for t in self._threads:
+                if t.name.startswith("camera") or t.name == "pairing":
+                    t.join(timeout=2.0)
+            if reader is not None:
+                reader.stop(timeout=1.0)
+            stop_workers.set()
+            for p in workers:
+                p.join(timeout=2.0)
+                if p.is_alive():
+                    p.terminate()
+            self._workers_done.set()
+            for t in self._threads:
+                t.join(timeout=1.0)
+            reporter.stop()
+            if self.live is not None:
+                self.live.close()
+            if self.recorder is not None:
+                self.recorder.close(timeout=5.0)
+            self.ring.close()
+            self.ring.unlink()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        return EXIT_OK
+
+    def run_with_banner(self) -> int:
+        """:meth:`run`, telling the user on stderr what runs where, and a final summary."""
+        import sys
+
+        self._banner = True
+        code = self.run()
+        c = self.counters
+        sys.stderr.write(
+            f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
+            f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
+            f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+        return code
+
+    def _spawn(self, target: Any, name: str, *args: Any) -> None:
+        t = threading.Thread(target=target, name=name, args=args, daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        log.info("signal %d: shutting down", signum)
+        self.stop_event.set()
+
+    def _health_counters(self) -> dict[str, int]:
+        c = self.counters
+        out = {
+            "frames_left": c.frames["left"], "frames_right": c.frames["right"],
+            "pairs": c.pairs, "results": c.results, "result_errors": c.result_errors,
+            "skipped_pairs": c.skipped_pairs, "frame_queue_drops": c.frame_queue_drops,
+            "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
+            "wind_samples": c.wind_samples,
+        }
+        if self.recorder is not None:
+            out["recorder_drops"] = int(sum(self.recorder.stats().drops.values()))
+        if self.live is not None:
+            out["live_drops"] = int(self.live.stats().dropped)
+        if self.ring is not None:
+            out["ring_overwrites"] = int(self.ring.stats().overwrites)
+        if getattr(self, "_anemometer", None) is not None:
+            counts = self._anemometer.counts
+            out["serial_errors"] = int(counts.checksum_failures + counts.malformed)
+        return out
+
+    # ------------------------------------------------------------------ anemometer
+
+    def _start_anemometer_and_history(self) -> Any:
+        from drivers.anemometer.history import WindHistory
+        from drivers.anemometer.mounting import Mounting
+        from drivers.anemometer.reader import AnemometerReader
+        from drivers.anemometer.registry import make_anemometer
+
+        a = self.cfg.anemometer
+        self._mounting = Mounting.from_config(a.protocol, a.mounting)
+        options = dict(a.options)
+        if a.backend == "serial":
+            options.setdefault("protocol", a.protocol)
+            options.setdefault("port", a.port)
+            options.setdefault("baudrate", a.baud)
+            options.setdefault("parity", a.parity)
+        self._anemometer = make_anemometer(a.backend, **options)
+        self.history = WindHistory()
+        return AnemometerReader(self._anemometer, on_sample=self._on_wind,
+                                history=self.history, mounting=self._mounting).start()
+
+    def _mean_simulated_wind(self) -> tuple[float, float, float]:
+        """Mean wind in the camera frame that drives the simulated plume."""
+        a = self.cfg.anemometer
+        if a.backend == "simulated":
+            from drivers.anemometer.simulated import SimulatedAnemometer
+
+            sensor = np.asarray(getattr(self._anemometer, "mean_wind",
+                                        a.options.get("mean_wind",
+                                                      _default_arg(SimulatedAnemometer,
+                                                                   "mean_wind"))),
+                                dtype=np.float64)
+            v = self._mounting.rotation @ sensor
+            return (float(v[0]), float(v[1]), float(v[2]))
+        return (1.5, 0.0, 0.0)
+
+
+def _default_arg(cls: type, name: str) -> Any:
+    import inspect
+
+    return inspect.signature(cls).parameters[name].default
+
+
+def _finite(x: Any) -> float:
+    v = float(x)
+    return v if np.isfinite(v) else 0.0
+
+
+def _finite_or_none(x: Any) -> float | None:
+    if x is None:
+        return None
+    v = float(x)
+    return v if np.isfinite(v) else None

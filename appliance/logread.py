@@ -1,0 +1,71 @@
+"""Reading the appliance's own MCAP logs message by message, tolerating a cut end.
+
+A file cut by a crash or power loss fails the seeking (indexed) reader, but the
+non-seeking reader returns every completed chunk (DESIGN.md). Readers here stop at the
+cut, remember that they did (``truncated``), and let the caller say so to the user.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from mcap.exceptions import InvalidMagic, McapError
+from mcap.reader import NonSeekingReader
+
+
+class LogReader:
+    """Iterate ``(topic, log_time_ns, publish_time_ns, payload)`` in file order.
+
+    Attributes
+    ----------
+    truncated : bool
+        After iteration: the file ended inside a record (everything before was read).
+    bytes_read : int
+        Position in the file, for progress bars.
+    """
+
+    def __init__(self, path: str | Path, topics: Iterable[str] | None = None) -> None:
+        self.path = Path(path)
+        self.topics = None if topics is None else list(topics)
+        self.truncated = False
+        self.size = self.path.stat().st_size if self.path.exists() else 0
+        self._stream: Any = None
+
+    @property
+    def bytes_read(self) -> int:
+        return 0 if self._stream is None or self._stream.closed else self._stream.tell()
+
+    def __iter__(self) -> Iterator[tuple[str, int, int, bytes]]:
+        try:
+            self._stream = open(self.path, "rb")
+        except OSError as exc:
+            raise ValueError(f"cannot open {self.path}: {exc.strerror}") from None
+        try:
+            reader = NonSeekingReader(self._stream)
+            try:
+                for _schema, channel, msg in reader.iter_messages(topics=self.topics,
+                                                                  log_time_order=False):
+                    yield channel.topic, msg.log_time, msg.publish_time, msg.data
+            except InvalidMagic:
+                raise ValueError(f"{self.path}: not an MCAP file") from None
+            except (McapError, struct.error, EOFError):
+                self.truncated = True
+        finally:
+            self._stream.close()
+
+
+def iter_json(
+    path: str | Path, topics: Iterable[str]
+) -> tuple[LogReader, Iterator[tuple[str, Any]]]:
+    """A :class:`LogReader` and an iterator of ``(topic, decoded JSON)`` over it."""
+    reader = LogReader(path, topics)
+
+    def gen() -> Iterator[tuple[str, Any]]:
+        for topic, _log, _pub, data in reader:
+            yield topic, json.loads(data)
+
+    return reader, gen()

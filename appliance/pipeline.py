@@ -1,0 +1,179 @@
+"""Pipeline worker processes: take the newest consecutive stereo pairs, run the chain.
+
+Each worker is a separate process (both cores are used; numpy, numba and OpenCV release
+the GIL only partly) that attaches to the shared-memory ring, repeatedly claims the
+newest window of three consecutive pairs (t0, t1, t2), copies it out, and runs
+:func:`processing.chain.compute_scene_flow` - the same function replay, evaluation and
+benchmarks call. When processing falls behind, older windows are skipped and counted;
+acquisition and recording never wait for a worker. Results go back to the daemon through
+a multiprocessing queue as :class:`WorkerResult` (fields reduced to what the recorder and
+the live view need).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from processing.chain import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
+
+#: Points of the 3D velocity field sent for the live view (subsampled gas pixels).
+MAX_ARROWS = 400
+
+
+@dataclass
+class WorkerResult:
+    """One processed window, as sent from a worker to the daemon (picklable).
+
+    Times are host monotonic ns of the three pairs (mean of both cameras' capture times);
+    fields are those of the left view at t0, (H, W) unless stated.
+    """
+
+    worker: int
+    pair_indices: tuple[int, int, int]
+    t_mono_ns: tuple[int, int, int]
+    t_wall_ns: int
+    skipped: int
+    done_mono_ns: int
+    error: str | None = None
+    summary: dict[str, Any] = field(default_factory=dict)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    dt_s: float | None = None
+    diff_scale: float | None = None
+    rejected_shifts: int = 0
+    diff_left: np.ndarray | None = None  # uint8, 0.5 = no change
+    diff_right: np.ndarray | None = None
+    flow: np.ndarray | None = None  # (H, W, 2) float32 px
+    disparity: np.ndarray | None = None  # float32 px
+    disparity_change: np.ndarray | None = None
+    velocity: np.ndarray | None = None  # (H, W, 3) float32 m/s
+    valid: np.ndarray | None = None  # bool
+    gas_mask: np.ndarray | None = None  # bool
+    points3d: np.ndarray | None = None  # (N, 3) m, gas pixels only
+    velocity3d: np.ndarray | None = None  # (N, 3) m/s
+
+
+def _to_u8(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+
+
+def pack_result(res: SceneFlowResult, base: WorkerResult) -> WorkerResult:
+    """Fill ``base`` with what the daemon needs from a chain result."""
+    base.summary = res.summary.to_dict()
+    base.timings_ms = dict(res.timings_ms)
+    base.dt_s = res.dt_s
+    base.diff_scale = res.diff_scale
+    base.rejected_shifts = res.rejected_shifts
+    base.diff_left = _to_u8(res.diff_left[0])
+    base.diff_right = _to_u8(res.diff_right[0])
+    base.flow = res.flow
+    base.disparity = res.disparity
+    base.disparity_change = res.disparity_change
+    base.velocity = res.velocity
+    base.valid = res.valid
+    base.gas_mask = res.gas_mask
+    sel = np.flatnonzero((res.gas_mask & res.valid).ravel())
+    if sel.size > MAX_ARROWS:
+        sel = sel[:: int(np.ceil(sel.size / MAX_ARROWS))]
+    base.points3d = res.position.reshape(-1, 3)[sel].copy()
+    base.velocity3d = res.velocity.reshape(-1, 3)[sel].copy()
+    return base
+
+
+def _single_threaded() -> None:
+    """One thread per worker: the daemon runs one worker per core."""
+    import cv2
+
+    cv2.setNumThreads(1)
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
+
+
+def worker_main(
+    worker_id: int,
+    ring_handle: Any,
+    results: Any,
+    stop: Any,
+    geometry: StereoGeometry,
+    params: ChainParameters,
+) -> None:
+    """Body of one worker process; returns when ``stop`` (an Event) is set.
+
+    Parameters
+    ----------
+    worker_id : int
+        Index of this worker (for the health counters).
+    ring_handle : appliance.ring.RingHandle
+        Shared-memory ring to attach to.
+    results : multiprocessing.Queue
+        Where :class:`WorkerResult` objects go.
+    stop : multiprocessing.Event
+        Set by the daemon to end the worker.
+    geometry, params
+        Stereo geometry and chain parameters (see :mod:`processing.chain`).
+    """
+    from appliance.ring import PairRing
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    _single_threaded()
+    ring = PairRing.attach(ring_handle)
+    state = ChainState()
+    torn = 0
+    try:
+        while not stop.is_set():
+            lease = ring.take_newest(3)
+            if lease is None:
+                time.sleep(0.002)
+                continue
+            meta = lease.meta
+            skipped = lease.skipped
+            images = lease.copy()
+            lease.release()
+            if images is None:
+                torn += 1  # overwritten while copying: the worker is far behind
+                continue
+            left, right = images
+            t_mono = tuple(int((m["t_left_mono_ns"] + m["t_right_mono_ns"]) // 2) for m in meta)
+            base = WorkerResult(
+                worker=worker_id,
+                pair_indices=tuple(int(m["pair_index"]) for m in meta),  # type: ignore[arg-type]
+                t_mono_ns=t_mono,  # type: ignore[arg-type]
+                t_wall_ns=int(meta[1]["t_wall_ns"]),
+                skipped=skipped + torn,
+                done_mono_ns=0,
+            )
+            torn = 0
+            try:
+                res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
+                pack_result(res, base)
+            except ValueError as exc:  # bad frames: reported, the worker goes on
+                base.error = f"{type(exc).__name__}: {exc}"
+            except Exception:
+                base.error = traceback.format_exc(limit=5)
+            base.done_mono_ns = time.monotonic_ns()
+            try:
+                results.put(base, timeout=1.0)
+            except queue.Full:
+                pass
+    finally:
+        ring.close()
+
+
+def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[int, ...],
+                          geometry: StereoGeometry, params: ChainParameters,
+                          state: ChainState) -> SceneFlowResult:
+    """Run the chain on (3, H, W) left/right stacks with host monotonic ns times."""
+    from processing.chain import compute_scene_flow
+
+    times = tuple(t / 1e9 for t in t_mono_ns)
+    return compute_scene_flow(list(left), list(right), times, geometry, params, state)
