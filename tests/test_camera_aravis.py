@@ -78,7 +78,11 @@ def test_two_fake_gige_cameras_pair_and_recover_after_one_is_killed() -> None:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.run(
         [*prefix, sys.executable, __file__, "--scenario"],
-        capture_output=True, text=True, timeout=90, env=env, cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=90,
+        env=env,
+        cwd=ROOT,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -114,16 +118,25 @@ def _scenario() -> dict:
 
     def start_fake(side: str) -> subprocess.Popen:
         serial, ip = addrs[side]
-        p = subprocess.Popen([FAKE, "-s", serial, "-i", ip], stdout=subprocess.DEVNULL,
-                             stderr=subprocess.DEVNULL)
+        p = subprocess.Popen(
+            [FAKE, "-s", serial, "-i", ip], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
         time.sleep(0.3)
         return p
 
     fakes = {s: start_fake(s) for s in addrs}
     cams = {
-        s: create_camera("aravis", serial=addrs[s][0], pixel_format="Mono16", fps=30.0,
-                         width=320, height=240, reconnect_after_s=0.5, retry_interval_s=0.2,
-                         label=s)
+        s: create_camera(
+            "aravis",
+            serial=addrs[s][0],
+            pixel_format="Mono16",
+            fps=30.0,
+            width=320,
+            height=240,
+            reconnect_after_s=0.5,
+            retry_interval_s=0.2,
+            label=s,
+        )
         for s in addrs
     }
     q: queue.Queue = queue.Queue()
@@ -146,8 +159,7 @@ def _scenario() -> dict:
     period = round(1e9 / 30)
     clocks = {s: ClockModel(nominal_period_ns=period) for s in addrs}
     pairer: StereoPairer = StereoPairer(period, max_delay_ns=150_000_000)
-    out = {"formats": set(), "dtypes": set(), "shapes": set(), "device_ts": True,
-           "frame_ids": True}
+    out = {"formats": set(), "dtypes": set(), "shapes": set(), "device_ts": True, "frame_ids": True}
     phase = "before"
     counts = {"pairs_before": 0, "pairs_after": 0, "right_frames_after_restart": 0}
     t0 = time.monotonic()

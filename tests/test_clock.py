@@ -10,8 +10,16 @@ from appliance.clock import ClockModel, lower_envelope_fit
 P = 33_333_333
 
 
-def _stream(n, *, drift_ppm=30.0, offset_ns=5_000_000_000_000, latency_ns=7_000_000,
-            jitter_ns=2_000_000, seed=0, period_ns=P):
+def _stream(
+    n,
+    *,
+    drift_ppm=30.0,
+    offset_ns=5_000_000_000_000,
+    latency_ns=7_000_000,
+    jitter_ns=2_000_000,
+    seed=0,
+    period_ns=P,
+):
     """True capture times, device stamps and arrivals of ``n`` frames (int64 ns)."""
     rng = np.random.default_rng(seed)
     k = np.arange(n)
