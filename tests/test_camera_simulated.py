@@ -50,7 +50,7 @@ def test_frames_come_from_the_synthetic_directory_and_loop(tmp_path: Path) -> No
                 right=np.zeros((5, 5), np.uint16),
             ),
             r"left is \(5, 5\)",
-        ),  # fmt: skip
+        ),
         (lambda d: (d / "meta.json").write_text("{"), "not valid JSON"),
         (lambda d: (d / "meta.json").write_text('{"format": "other/2"}'), "format"),
         (lambda d: (d / "frame_00000.npz").write_bytes(b"junk"), "unreadable"),
