@@ -33,7 +33,7 @@ def test_envelope_fit_recovers_an_exact_line_and_stays_below_all_points() -> Non
     rng = np.random.default_rng(1)
     xs = np.sort(rng.uniform(0, 3e10, 500))
     ys = 12345.0 + (1 + 2e-5) * xs + rng.exponential(1e6, 500)
-    c, b = lower_envelope_fit(list(xs), list(ys), 1e-3)
+    c, b = lower_envelope_fit(xs, ys, 1e-3)
     assert np.all(ys - (c + b * xs) >= -1e-3)
     assert b == pytest.approx(1 + 2e-5, abs=2e-7)
 

@@ -32,3 +32,41 @@ def test_no_phase_crossing_means_nothing_beyond_tolerance() -> None:
 def test_clockless_cameras_pair_by_smoothed_arrivals() -> None:
     r = simulate_pairing(120.0, device_clock=False, image_jitter_px=0.0)
     assert r.fraction_correct >= 0.999
+
+
+def test_right_camera_restart_resets_its_clock_and_pairing_resumes() -> None:
+    """The right camera stops at 20 s and comes back at 23 s with its device clock and
+    frame ids restarted from zero; the same clock models and pairer carry on."""
+    from appliance.clock import ClockModel
+    from appliance.pairing import StereoPairer
+    from drivers.camera.simulated import SimulatedCamera
+    from drivers.camera.sources import TexturePatternSource
+
+    src = TexturePatternSource(n_frames=2)
+    common = dict(realtime=False, epoch_ns=0, latency_s=0.01, jitter_s=0.002)
+    left = SimulatedCamera("left", src, seed=1, drift_ppm=30.0, **common)
+    right_a = SimulatedCamera("right", src, seed=2, clock_offset_s=500.0, phase_s=0.004, **common)
+    right_b = SimulatedCamera(
+        "right", src, seed=3, clock_offset_s=-23.007, phase_s=23.007, **common
+    )  # fmt: skip
+    clocks = {"left": ClockModel(latency_ns=10_000_000), "right": ClockModel(latency_ns=10_000_000)}
+    pairer: StereoPairer = StereoPairer(PERIOD_NS)
+    events = []
+    for cam, until in ((left, 40e9), (right_a, 20e9), (right_b, 40e9)):
+        with cam:
+            while (f := cam.grab()).host_ns < until:
+                events.append((f.host_ns, cam.side, f, cam))
+    events.sort(key=lambda e: e[0])
+    pairs = []
+    for host, side, f, cam in events:
+        t = clocks[side].update(f.host_ns, f.device_ts_ns)
+        pairs += pairer.push(side, t, (cam, f.device_frame_id), now_ns=host)
+    pairs += pairer.flush()
+    assert clocks["right"].resets == 1 and clocks["left"].resets == 0
+    after = [p for p in pairs if p.right[0] is right_b]
+    assert len(after) > 16 * 30 * 0.99  # ~17 s of pairs after the restart
+    for p in pairs:
+        (lc, lk), (rc, rk) = p.left, p.right
+        true_dt = rc.timing.capture_time_ns(rk) - lc.timing.capture_time_ns(lk)
+        assert abs(true_dt) <= PERIOD_NS // 2
+    assert pairer.stats.unpaired_left >= 3 * 30 - 2  # the 3 s without a right camera
