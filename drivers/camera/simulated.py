@@ -28,6 +28,7 @@ optional sub-pixel shift (``image_jitter_px``, one ``cv2.warpAffine``, ~0.1 ms).
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +38,8 @@ import numpy as np
 
 from drivers.camera.base import Camera, CameraTimeout, Capture, EndOfStream
 from drivers.camera.sources import FrameSource, load_source
+
+log = logging.getLogger(__name__)
 
 _BLOCK = 1024
 #: Shared epoch of realtime simulated cameras in this process, so a left and a right camera
@@ -208,6 +211,15 @@ class SimulatedCamera(Camera):
 
     def _open(self) -> None:
         self.source = load_source(self._source_spec)
+        interval = self.source.frame_interval_s
+        if interval is not None and abs(interval * self.timing.p.fps - 1.0) > 1e-3:
+            # The renderer moved the plume by one frame interval per frame: playing it at
+            # another rate changes every velocity the pipeline will measure.
+            log.warning(
+                "%s: frames were rendered %.4f s apart but are played at %.3f Hz; "
+                "velocities will scale by %.3f",
+                self.label, interval, self.timing.p.fps, interval * self.timing.p.fps,
+            )  # fmt: skip
 
     def _start(self) -> None:
         self._delivered = 0
