@@ -11,8 +11,10 @@ host: transport, driver) and ``j >= 0`` the arrival jitter (network, USB, schedu
 
 Because the jitter is never negative, the points ``(d_i, a_i)`` lie on or above the line
 ``alpha + beta d + L``: the *lower envelope* of the arrivals tracks the true mapping, and the
-frames that were delayed least define it. Over a sliding window (default 30 s) we fit the
-line that lies below every point and minimises the summed vertical distance to them (a
+frames that were delayed least define it. Over a sliding window (default 60 s: long
+enough to average the jitter, short enough that a crystal's temperature-dependent drift is
+constant within it) we fit the line that lies below every point and minimises the summed
+vertical distance to them (a
 linear programme whose optimum is the edge of the lower convex hull that spans the mean of
 ``d``; Moon, Skelly & Towsley, "Estimation and removal of clock skew from network delay
 measurements", INFOCOM 1999). The capture time of a frame is then
@@ -133,7 +135,7 @@ class ClockModel:
         *,
         latency_ns: int = 0,
         nominal_period_ns: int | None = None,
-        window_ns: int = 30_000_000_000,
+        window_ns: int = 60_000_000_000,
         min_span_ns: int = 2_000_000_000,
         max_drift_ppm: float = 1000.0,
         refit_every: int = 15,
