@@ -27,9 +27,13 @@ is not configured stays in ``t_hat`` as a constant bias; for stereo pairing only
 *difference* of the two cameras' biases matters.
 
 Devices without a clock (V4L2, RTSP, video files) use the same fit with ``d`` replaced by the
-nominal frame time ``k P``: ``k`` counts frame periods (from the device frame id when there is
-one, otherwise from the arrival gaps rounded to whole periods), ``P`` is the nominal frame
-period. This smooths the arrival times against a steady frame clock and estimates its rate.
+nominal frame time ``k P`` (``P`` the nominal frame period). ``k`` comes from the device frame
+id when there is one; otherwise it is counted against the envelope: an arrival before the
+envelope time of frame ``k + 2`` (less a margin of P/8) is frame ``k + 1`` however late,
+because jitter is never negative; a later one means frames were dropped. A frame more than
+7/8 of a period late is miscounted once, which the next frame reveals (``misindexed``); its
+point is then left out of the fit, so the count does not stay shifted. This smooths the
+arrival times against a steady frame clock and estimates its rate.
 
 Resets: when the device clock goes backwards or jumps forwards (camera restarted, clock
 reset), the arrival falls more than ``reset_threshold_ns`` below the envelope or ``d`` does
@@ -39,6 +43,7 @@ not increase; the window is then cleared and the estimate starts again (counted 
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -153,6 +158,10 @@ class ClockModel:
         self.refit_every = refit_every
         self.reset_threshold_ns = int(reset_threshold_ns)
         self.resets = 0
+        self.misindexed = 0  # clockless devices: frames found counted a period too far
+        self._refit_pending = False
+        self._inferred = False
+        self._pending: tuple[int, int] | None = None
         self._points: deque[tuple[int, int]] = deque()
         self._fit: ClockFit | None = None
         self._since_fit = 0
@@ -179,22 +188,39 @@ class ClockModel:
             device clock.
         """
         x = self._x_for(host_ns, device_ts_ns, device_frame_id)
-        if self._points:
-            last_x = self._points[-1][0]
+        last = self._pending or (self._points[-1] if self._points else None)
+        if last is not None:
             residual = host_ns - self._fit.host_time(x) if self._fit else 0.0
-            if x <= last_x or residual < -self.reset_threshold_ns:
+            if x <= last[0] or residual < -self.reset_threshold_ns:
                 self._reset()
                 if device_ts_ns is None:
                     x = self._x_for(host_ns, None, device_frame_id)
-        self._points.append((x, host_ns))
-        while self._points and self._points[0][0] < x - self.window_ns:
-            self._points.popleft()
-        self._since_fit += 1
-        below = self._fit is not None and host_ns < self._fit.host_time(x)
-        if self._fit is None or below or self._since_fit >= self.refit_every:
+        if self._inferred and self._fit is not None:
+            # Index counted from the arrival: only the next frame shows whether this one was
+            # late and miscounted, so its point joins the fit one frame later.
+            if self._pending is not None:
+                self._add(*self._pending)
+            self._pending = (x, host_ns)
+        else:
+            if self._pending is not None:
+                self._add(*self._pending)
+                self._pending = None
+            self._add(x, host_ns)
+        if self._fit is None or self._refit_pending:
             self._refit()
         assert self._fit is not None
         return round(self._fit.host_time(x)) - self.latency_ns
+
+    def _add(self, x: int, host_ns: int) -> None:
+        """Put a point into the fit window (refit when it lies below the envelope)."""
+        if self._fit is not None and host_ns < self._fit.host_time(x):
+            self._refit_pending = True
+        self._points.append((x, host_ns))
+        while self._points[0][0] < x - self.window_ns:
+            self._points.popleft()
+        self._since_fit += 1
+        if self._since_fit >= self.refit_every:
+            self._refit_pending = True
 
     def capture_time(self, device_ts_ns: int) -> int:
         """Capture time (host ns) of a device timestamp under the current fit (no update)."""
@@ -219,6 +245,7 @@ class ClockModel:
 
     # -- internals -----------------------------------------------------------------------
     def _x_for(self, host_ns: int, device_ts_ns: int | None, device_frame_id: int | None) -> int:
+        self._inferred = False
         if device_ts_ns is not None:
             return int(device_ts_ns)
         if self.nominal_period_ns is None:
@@ -227,11 +254,29 @@ class ClockModel:
         if self._last_host is None or self._k < 0:
             step = 0
             self._k = 0
-        elif device_frame_id is not None and self._last_frame_id is not None:
+        elif (
+            device_frame_id is not None
+            and self._last_frame_id is not None
+            and device_frame_id > self._last_frame_id
+        ):
             step = device_frame_id - self._last_frame_id
-            if step <= 0:  # id reset or wrap: fall back to the arrival gap
-                step = max(1, round((host_ns - self._last_host) / period))
+        elif self._fit is not None and len(self._points) >= 2:
+            # Count periods against the jitter-free envelope, where the next frame would
+            # arrive with no delay, not against the previous (jittered) arrival. Jitter is
+            # never negative, so an arrival before the envelope time of frame k+2 is frame
+            # k+1, however late (up to a period minus the margin for envelope error); only
+            # an arrival after it means frames were dropped.
+            self._inferred = True
+            expected = self._fit.host_time((self._k + 1) * period)
+            step = 1 + math.floor((host_ns - expected + period / 8) / period)
+            if step <= 0:
+                # The previous frame came more than 7/8 of a period late and was counted one
+                # period too far: this frame takes that index, the late point is discarded.
+                self._pending = None
+                self.misindexed += 1
+                step = 0
         else:
+            self._inferred = True
             step = max(1, round((host_ns - self._last_host) / period))
         self._k += step
         self._last_host = host_ns
@@ -241,6 +286,8 @@ class ClockModel:
     def _reset(self) -> None:
         self.resets += 1
         self._points.clear()
+        self._pending = None
+        self._refit_pending = False
         self._fit = None
         self._since_fit = 0
         self._k = -1
@@ -258,3 +305,4 @@ class ClockModel:
             c, b = lower_envelope_fit(xs, ys, self.max_rate_error)
         self._fit = ClockFit(x0=x0, host0=y0, intercept=c, slope=b)
         self._since_fit = 0
+        self._refit_pending = False

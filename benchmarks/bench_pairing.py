@@ -136,7 +136,10 @@ def simulate_pairing(
         heads[side] = cams[side].grab()
         k = f.device_frame_id
         assert k is not None
-        t_hat = clocks[side].update(f.host_ns, f.device_ts_ns, f.device_frame_id)
+        # Without a device clock, give the model no frame ids either (like V4L2): it counts
+        # frame periods from the arrival gaps.
+        fid = f.device_frame_id if device_clock else None
+        t_hat = clocks[side].update(f.host_ns, f.device_ts_ns, fid)
         t_true = int(cams[side].timing.capture_time_ns(k))
         true_times[side].append((k, t_true))
         if f.host_ns > warmup_s * 1e9:
@@ -177,7 +180,7 @@ def main() -> None:
     ap.add_argument(
         "--no-device-clock",
         action="store_true",
-        help="simulate cameras without timestamps (arrival smoothing only)",
+        help="cameras without clock or frame ids, like V4L2 (arrival smoothing only)",
     )
     args = ap.parse_args()
     r = simulate_pairing(args.minutes * 60.0, device_clock=not args.no_device_clock)

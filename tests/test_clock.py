@@ -94,3 +94,22 @@ def test_clockless_without_period_is_an_error() -> None:
         m.update(123)
     with pytest.raises(ValueError):
         ClockModel(nominal_period_ns=0)
+
+
+def test_clockless_late_frame_is_not_taken_for_a_drop() -> None:
+    """Without device clock or frame ids: a frame 25 ms late (3/4 period) keeps its index,
+    a dropped frame advances it by two, a frame 40 ms late costs that frame only."""
+    true, _, arrival = _stream(2000, drift_ppm=0.0, jitter_ns=500_000)
+    arrival = arrival.copy()
+    arrival[1200] += 25_000_000  # late, still before frame 1201 is due
+    arrival[1500] += 40_000_000  # later than the next frame's slot
+    arrival[1501] = max(arrival[1501], arrival[1500])  # in-order delivery
+    keep = np.ones(2000, bool)
+    keep[1300] = False  # dropped
+    m = ClockModel(latency_ns=7_000_000, nominal_period_ns=P)
+    est = np.array([m.update(int(a)) for a in arrival[keep]])
+    err = est - true[keep]
+    idx = np.flatnonzero(keep)
+    bad = idx[(np.abs(err) > 200_000) & (idx >= 100)]  # after the first few frames
+    assert bad.tolist() == [1500]  # only the frame later than a whole slot
+    assert m.misindexed == 1

@@ -3,7 +3,8 @@
 Frames are stamped with ``time.monotonic_ns()`` when ``read()`` returns: OpenCV's
 ``CAP_PROP_POS_MSEC`` is a position in the stream, not a capture time, so there is no
 device timestamp (``device_ts_ns`` None; the clock model smooths arrivals against the
-nominal period instead). ``device_frame_id`` is the frame's index in the stream.
+nominal period instead). ``device_frame_id`` is the frame's index in a video file, and None
+for live sources (OpenCV does not report the device's frame counter, so drops are unseen).
 
 Colour frames are converted to grey (``Mono8``). A V4L2 camera delivering 16-bit grey
 (``Y16``) is read raw (``fourcc="Y16 "``, ``convert_rgb=False``) as ``Mono16``.
@@ -205,7 +206,9 @@ class OpenCVCamera(Camera):
             image=image,
             pixel_format="Mono16" if image.dtype == np.uint16 else "Mono8",
             host_ns=host_ns,
-            device_frame_id=index,
+            # A file's frame index is exact; a live source's count of delivered frames would
+            # hide drops, and the clock model would take it for the device's frame counter.
+            device_frame_id=index if self.kind == "file" else None,
         )
 
     def _to_mono(self, frame: np.ndarray) -> np.ndarray:
