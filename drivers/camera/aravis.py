@@ -10,8 +10,8 @@ and the frame (block) id; GigE Vision 1.x block ids are 16 bit and skip 0 when t
 gap in the ids is reported as ``Frame.lost``; buffers Aravis could not complete (missing
 packets, timeouts) are dropped and counted as lost too.
 
-Arrival time: Aravis records the host wall-clock time when the buffer was completed
-(``get_system_timestamp``); we convert it to the monotonic timeline (``monotonic_now -
+Arrival time: Aravis records the host wall-clock time of the frame's arrival in its stream
+thread (``get_system_timestamp``); we convert it to the monotonic timeline (``monotonic_now -
 (realtime_now - system_ts)``), which excludes the delay of our own thread waking up. If the
 wall clock steps (NTP), the conversion is implausible and we fall back to the monotonic time
 of the pop.
