@@ -5,12 +5,14 @@ Needs the Debian packages ``aravis-tools`` (``arv-fake-gv-camera-0.8``) and
 installs them.
 
 A fake camera binds the GigE Vision control port 3956 on one interface address, so two of
-them need two addresses. The scenario therefore runs in a private network namespace
+them need two addresses. The scenarios therefore run in a private network namespace
 (``unshare -rn``: no privileges needed, host networking untouched, no clash with anything
-else on port 3956) whose loopback gets a second address 127.0.0.2. In it: two fake cameras
-stream Mono16 320x240 at 30 Hz into two ``AravisCamera`` readers (one thread each), through
-the clock model into the stereo pairer; then the right camera's process is killed and
-started again, and the reader - never restarted - must deliver frames and pairs again.
+else on port 3956) whose loopback gets a second address 127.0.0.2. Where namespaces are not
+allowed (e.g. a default Docker container), they run in the host namespace on 127.0.0.1 and
+another local interface address, if the machine has one. In them: two fake cameras stream
+Mono16 320x240 at 30 Hz into two ``AravisCamera`` readers (one thread each), through the
+clock model into the stereo pairer; then the right camera's process is killed and started
+again, and the reader - never restarted - must deliver frames and pairs again.
 """
 
 from __future__ import annotations
@@ -66,20 +68,36 @@ def test_frame_id_gap_handles_16_bit_wrap_and_restart() -> None:
     assert frame_id_gap(40000, 3) == 0  # device restarted
 
 
-def _run_scenario(name: str) -> dict:
-    """Run ``_scenario_<name>`` in a private network namespace; return its JSON result."""
+def _host_addresses() -> list[str]:
+    """IPv4 addresses of the interfaces that are up, loopback first."""
+    out = subprocess.run(["ip", "-4", "-o", "addr", "show", "up"], capture_output=True,
+                         text=True).stdout  # fmt: skip
+    addrs = [line.split()[3].split("/")[0] for line in out.splitlines() if " inet " in line]
+    return sorted(set(addrs), key=lambda a: (not a.startswith("127."), a))
+
+
+def _run_scenario(name: str, n_addresses: int) -> dict:
+    """Run ``_scenario_<name>`` in a private network namespace (or, failing that, on host
+    addresses); return its JSON result."""
     missing = _aravis_missing()
     if missing:
         pytest.skip(missing)
     prefix = _netns_prefix()
-    if prefix is None:
-        pytest.skip(
-            "cannot create a private network namespace (unshare -rn / unshare -n refused: user "
-            "namespaces disabled and not root); two fake cameras need two loopback addresses"
-        )
+    if prefix is not None:
+        cmd = [*prefix, sys.executable, __file__, "--scenario", name, "--netns"]
+    else:
+        addrs = _host_addresses() if shutil.which("ip") else []
+        if len(addrs) < n_addresses:
+            pytest.skip(
+                "cannot create a private network namespace (unshare -rn / unshare -n refused: "
+                f"user namespaces disabled and not root) and the host has {len(addrs)} "
+                f"interface address(es); the fake cameras need {n_addresses}"
+            )
+        cmd = [sys.executable, __file__, "--scenario", name, "--addresses",
+               ",".join(addrs[:n_addresses])]  # fmt: skip
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     proc = subprocess.Popen(
-        [*prefix, sys.executable, __file__, "--scenario", name], stdout=subprocess.PIPE,
+        cmd, stdout=subprocess.PIPE,
         stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, start_new_session=True,
     )  # fmt: skip
     try:
@@ -97,7 +115,7 @@ def _run_scenario(name: str) -> dict:
 def test_lost_packets_drop_incomplete_frames_and_count_them_as_lost() -> None:
     """A fake camera losing 0.1 % of its GVSP packets: incomplete frames are not delivered,
     and every missing frame id is reported in ``Frame.lost``."""
-    r = _run_scenario("lossy")
+    r = _run_scenario("lossy", 1)
     assert r["frames"] >= 30
     assert r["lost"] >= 1  # at ~75 packets per frame, about 7 % of frames lose one
     assert r["frames"] + r["lost"] == r["id_span"]
@@ -105,7 +123,7 @@ def test_lost_packets_drop_incomplete_frames_and_count_them_as_lost() -> None:
 
 
 def test_two_fake_gige_cameras_pair_and_recover_after_one_is_killed() -> None:
-    r = _run_scenario("pair")
+    r = _run_scenario("pair", 2)
     assert r["formats"] == ["Mono16"] and r["dtypes"] == ["uint16"]
     assert r["shapes"] == [[240, 320]]
     assert r["device_ts"] and r["frame_ids"]
@@ -134,15 +152,25 @@ def _start_fake(serial: str, ip: str, *extra: str) -> subprocess.Popen:
     return p
 
 
+def _addresses(n: int) -> list[str]:
+    """The addresses the fake cameras listen on (namespace: set up lo with two)."""
+    if "--netns" in sys.argv:
+        subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
+        if n > 1:
+            subprocess.run(["ip", "addr", "add", "127.0.0.2/8", "dev", "lo"], check=True)
+        return ["127.0.0.1", "127.0.0.2"][:n]
+    return sys.argv[sys.argv.index("--addresses") + 1].split(",")[:n]
+
+
 def _scenario_lossy() -> dict:
     import time
 
     from drivers.camera import CameraError, create_camera
 
-    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
-    fake = _start_fake("LOSSY", "127.0.0.1", "-r", "1")
+    (ip,) = _addresses(1)
+    fake = _start_fake("LOSSY", ip, "-r", "1")
     try:
-        cam = create_camera("aravis", address="127.0.0.1", width=320, height=240)
+        cam = create_camera("aravis", address=ip, width=320, height=240)
         ids, lost, shapes = [], 0, set()
         with cam:
             t0 = time.monotonic()
@@ -170,9 +198,8 @@ def _scenario_pair() -> dict:
     from appliance.pairing import StereoPairer
     from drivers.camera import CameraError, create_camera
 
-    subprocess.run(["ip", "link", "set", "lo", "up"], check=True)
-    subprocess.run(["ip", "addr", "add", "127.0.0.2/8", "dev", "lo"], check=True)
-    addrs = {"left": ("OGIL", "127.0.0.1"), "right": ("OGIR", "127.0.0.2")}
+    ip_left, ip_right = _addresses(2)
+    addrs = {"left": ("OGIL", ip_left), "right": ("OGIR", ip_right)}
 
     def start_fake(side: str) -> subprocess.Popen:
         return _start_fake(*addrs[side])
@@ -280,7 +307,8 @@ if __name__ == "__main__" and "--scenario" in sys.argv:
 
     logging.basicConfig(level=logging.INFO, format="%(relativeCreated)6.0f %(message)s")
     try:
-        print(json.dumps(globals()[f"_scenario_{sys.argv[-1]}"]()))
+        scenario = sys.argv[sys.argv.index("--scenario") + 1]
+        print(json.dumps(globals()[f"_scenario_{scenario}"]()))
     finally:
         for fake in _FAKES:
             fake.kill()
