@@ -11,8 +11,13 @@ dev=0
 
 apt_packages=(python3-venv python3-dev)
 if [ "$dev" = 1 ]; then
-    # Tests: none yet beyond the runtime set (issue-specific packages are added here).
-    apt_packages+=(systemd)
+    # Tests (issue-specific packages are added here).
+    # systemd: `systemd-analyze verify` lints the unit file.
+    # Cameras: Aravis library + typelib, its fake GigE Vision camera, what PyGObject (the
+    # gige extra, built from source) compiles against; iproute2 (ip) for the fake cameras'
+    # private network namespace.
+    apt_packages+=(systemd gir1.2-aravis-0.8 aravis-tools gcc libgirepository1.0-dev
+                   libcairo2-dev pkg-config iproute2)
 fi
 
 missing=()
@@ -30,7 +35,7 @@ fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip
 if [ "$dev" = 1 ]; then
-    .venv/bin/python -m pip install -q -e ".[dev]"
+    .venv/bin/python -m pip install -q -e ".[dev,gige]"
 else
     .venv/bin/python -m pip install -q .
 fi

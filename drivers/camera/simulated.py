@@ -1,0 +1,282 @@
+"""Simulated camera: pre-rendered frames delivered with a realistic timing model.
+
+Timing model (per camera, all times in ns on the host monotonic timeline, ``t = 0`` at the
+shared epoch):
+
+- the device clock reads ``D(t) = offset + (1 + drift) t``;
+- the camera exposes frame ``k`` when its own clock reads ``D_k = D(phase) + k P`` (its frame
+  timer runs on the device clock, so a drifting camera also runs slightly fast or slow);
+  the true capture time is ``t_k = (D_k - offset) / (1 + drift)``;
+- the frame reaches the host at ``a_k = t_k + latency + j_k``, ``j_k`` exponential with mean
+  ``jitter_s`` (never negative; transport delivers in order, so ``a_k >= a_{k-1}``);
+- with probability ``drop_rate`` frame ``k`` is lost; the next delivered frame reports it in
+  ``lost`` (its ``device_frame_id`` jumps).
+
+``device_ts_ns`` is ``D_k`` (or None with ``device_clock=False``), ``device_frame_id`` is
+``k``. The random draws depend only on ``seed`` and ``k`` (blocks of 1024 frames), so a run is
+reproducible and :meth:`TimingModel.capture_time_ns` gives the ground truth of any frame.
+
+With ``realtime=True`` (the daemon) ``grab`` sleeps until each arrival and stamps the frame
+with ``time.monotonic_ns()``; with ``realtime=False`` it returns at once and stamps the
+modelled arrival on a virtual timeline starting at ``epoch_ns`` (tests, benchmarks: ten
+minutes of simulated time take seconds).
+
+Images come from a shared pre-rendered :class:`~drivers.camera.sources.FrameSource`
+(left camera: the left image of frame ``k % n_frames``); the only per-frame work is an
+optional sub-pixel shift (``image_jitter_px``, one ``cv2.warpAffine``, ~0.1 ms).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from drivers.camera.base import Camera, CameraTimeout, Capture, EndOfStream
+from drivers.camera.sources import FrameSource, load_source
+
+log = logging.getLogger(__name__)
+
+_BLOCK = 1024
+#: Shared epoch of realtime simulated cameras in this process, so a left and a right camera
+#: started at different moments still share one true timeline.
+_PROCESS_EPOCH_NS = time.monotonic_ns()
+
+
+@dataclass(frozen=True)
+class TimingParams:
+    """Timing of one simulated camera (seconds, ppm; see the module docstring)."""
+
+    fps: float = 30.0
+    latency_s: float = 0.008
+    jitter_s: float = 0.002
+    clock_offset_s: float = 0.0
+    drift_ppm: float = 0.0
+    drop_rate: float = 0.0
+    phase_s: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.fps > 0:
+            raise ValueError(f"fps must be > 0, got {self.fps}")
+        if self.latency_s < 0 or self.jitter_s < 0:
+            raise ValueError("latency_s and jitter_s must be >= 0")
+        if not 0 <= self.drop_rate < 1:
+            raise ValueError(f"drop_rate must be in [0, 1), got {self.drop_rate}")
+        if abs(self.drift_ppm) >= 1e5:
+            raise ValueError(f"drift_ppm is unrealistic: {self.drift_ppm}")
+
+
+@dataclass(frozen=True)
+class FrameEvents:
+    """Frames ``k0 .. k0+n-1``: arrays of length n (int64 ns, bool)."""
+
+    k0: int
+    capture_ns: np.ndarray
+    device_ns: np.ndarray
+    arrival_ns: np.ndarray
+    dropped: np.ndarray
+
+
+class TimingModel:
+    """Deterministic capture/device/arrival times of every frame of one camera."""
+
+    def __init__(self, params: TimingParams) -> None:
+        self.p = params
+        self.period_ns = 1e9 / params.fps
+        self.rate = 1.0 + params.drift_ppm * 1e-6
+        self.offset_ns = params.clock_offset_s * 1e9
+        self._d0 = self.offset_ns + self.rate * params.phase_s * 1e9
+        self._cache: dict[int, FrameEvents] = {}
+
+    def device_time_ns(self, k: np.ndarray | int) -> np.ndarray:
+        """Device timestamp of frame(s) ``k`` (float ns)."""
+        return self._d0 + np.asarray(k, dtype=np.float64) * self.period_ns
+
+    def capture_time_ns(self, k: np.ndarray | int) -> np.ndarray:
+        """True capture time of frame(s) ``k`` on the host timeline (float ns)."""
+        return (self.device_time_ns(k) - self.offset_ns) / self.rate
+
+    def block(self, b: int) -> FrameEvents:
+        """Events of frames ``b*1024 .. b*1024+1023`` (cached; two blocks kept)."""
+        if b in self._cache:
+            return self._cache[b]
+        k = np.arange(b * _BLOCK, (b + 1) * _BLOCK)
+        rng = np.random.default_rng([self.p.seed, b])
+        jitter = rng.exponential(self.p.jitter_s * 1e9, _BLOCK) if self.p.jitter_s > 0 else 0.0
+        dropped = rng.random(_BLOCK) < self.p.drop_rate
+        capture = self.capture_time_ns(k)
+        arrival = capture + self.p.latency_s * 1e9 + jitter
+        # In-order delivery; the first frame of a block also respects the previous block.
+        np.maximum.accumulate(arrival, out=arrival)
+        events = FrameEvents(
+            k0=b * _BLOCK,
+            capture_ns=np.round(capture).astype(np.int64),
+            device_ns=np.round(self.device_time_ns(k)).astype(np.int64),
+            arrival_ns=np.round(arrival).astype(np.int64),
+            dropped=dropped,
+        )
+        if len(self._cache) >= 2:
+            self._cache.pop(min(self._cache))
+        self._cache[b] = events
+        return events
+
+    def first_frame_after(self, t_ns: float) -> int:
+        """Index of the first frame captured after host time ``t_ns``."""
+        k = int(np.ceil((t_ns * self.rate + self.offset_ns - self._d0) / self.period_ns))
+        return max(k, 0)
+
+
+class SimulatedCamera(Camera):
+    """A simulated OGI camera (one side of a stereo pair).
+
+    Parameters
+    ----------
+    side : {"left", "right"}
+        Which image of the source's stereo pair this camera delivers.
+    source : str, Path or FrameSource
+        ``"pattern"`` (deterministic texture), a synthetic frame directory
+        (``ogiflow-synthetic/1``), or a source object; shared between cameras.
+    fps, latency_s, jitter_s, clock_offset_s, drift_ppm, drop_rate, phase_s, seed
+        Timing model (module docstring). ``phase_s`` is when this camera's first frame is
+        exposed after the epoch: the two cameras are not triggered together.
+    image_jitter_px : float
+        Standard deviation of a random sub-pixel image shift per frame, px (camera shake).
+    device_clock : bool
+        False simulates a device without timestamps (``device_ts_ns`` None).
+    realtime : bool
+        Sleep until each frame's arrival (True) or return immediately on a virtual timeline.
+    epoch_ns : int or None
+        Host time of ``t = 0``. Default: a process-wide monotonic epoch when realtime, else 0.
+    max_frames : int or None
+        Deliver this many frames, then raise EndOfStream (None: endless).
+    label : str
+        Name for messages; defaults to ``side``.
+    """
+
+    backend = "simulated"
+
+    def __init__(
+        self,
+        side: str = "left",
+        source: str | Path | FrameSource = "pattern",
+        *,
+        fps: float = 30.0,
+        latency_s: float = 0.008,
+        jitter_s: float = 0.002,
+        clock_offset_s: float = 0.0,
+        drift_ppm: float = 0.0,
+        drop_rate: float = 0.0,
+        phase_s: float = 0.0,
+        seed: int = 0,
+        image_jitter_px: float = 0.0,
+        device_clock: bool = True,
+        realtime: bool = True,
+        epoch_ns: int | None = None,
+        max_frames: int | None = None,
+        label: str | None = None,
+    ) -> None:
+        super().__init__(label=label or side)
+        if side not in ("left", "right"):
+            raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+        if image_jitter_px < 0:
+            raise ValueError(f"image_jitter_px must be >= 0, got {image_jitter_px}")
+        self.side = side
+        self._source_spec = source
+        self.timing = TimingModel(
+            TimingParams(
+                fps=fps,
+                latency_s=latency_s,
+                jitter_s=jitter_s,
+                clock_offset_s=clock_offset_s,
+                drift_ppm=drift_ppm,
+                drop_rate=drop_rate,
+                phase_s=phase_s,
+                seed=seed,
+            )
+        )
+        self.image_jitter_px = float(image_jitter_px)
+        self.device_clock = device_clock
+        self.realtime = realtime
+        self.epoch_ns = epoch_ns if epoch_ns is not None else (_PROCESS_EPOCH_NS if realtime else 0)
+        self.max_frames = max_frames
+        self.source: FrameSource | None = None
+        self._k = 0
+        self._delivered = 0
+        self._rng = np.random.default_rng(seed + 7919)
+
+    def _open(self) -> None:
+        self.source = load_source(self._source_spec)
+        interval = self.source.frame_interval_s
+        if interval is not None and abs(interval * self.timing.p.fps - 1.0) > 1e-3:
+            # The renderer moved the plume by one frame interval per frame: playing it at
+            # another rate changes every velocity the pipeline will measure.
+            log.warning(
+                "%s: frames were rendered %.4f s apart but are played at %.3f Hz; "
+                "velocities will scale by %.3f",
+                self.label, interval, self.timing.p.fps, interval * self.timing.p.fps,
+            )  # fmt: skip
+
+    def _start(self) -> None:
+        self._delivered = 0
+        if self.realtime:
+            self._k = self.timing.first_frame_after(time.monotonic_ns() - self.epoch_ns)
+        else:
+            self._k = 0
+
+    def _next_event(self) -> tuple[int, int, int, int]:
+        """(k, device_ns, arrival_ns relative to the epoch, frames lost before it)."""
+        lost = 0
+        while True:
+            ev = self.timing.block(self._k // _BLOCK)
+            i = self._k - ev.k0
+            if not ev.dropped[i]:
+                return self._k, int(ev.device_ns[i]), int(ev.arrival_ns[i]), lost
+            lost += 1
+            self._k += 1
+
+    def _grab(self, timeout: float) -> Capture:
+        if self.max_frames is not None and self._delivered >= self.max_frames:
+            raise EndOfStream(f"{self.label}: delivered max_frames={self.max_frames}")
+        k, device_ns, arrival_rel, lost = self._next_event()
+        arrival = self.epoch_ns + arrival_rel
+        if self.realtime:
+            wait_ns = arrival - time.monotonic_ns()
+            if wait_ns > timeout * 1e9:
+                time.sleep(timeout)
+                raise CameraTimeout(f"{self.label}: no frame within {timeout} s")
+            if wait_ns > 0:
+                time.sleep(wait_ns / 1e9)
+            host_ns = time.monotonic_ns()
+        else:
+            host_ns = arrival
+        self._k = k + 1
+        self._delivered += 1
+        assert self.source is not None
+        image = self.source.stereo(k)[0 if self.side == "left" else 1]
+        if self.image_jitter_px > 0:
+            image = self._shift(image)
+        return Capture(
+            image=image,
+            pixel_format="Mono16",
+            host_ns=host_ns,
+            device_ts_ns=device_ns if self.device_clock else None,
+            device_frame_id=k,
+            lost=lost,
+            temperatures={"sensor": 35.0},
+        )
+
+    def _shift(self, image: np.ndarray) -> np.ndarray:
+        dx, dy = self._rng.normal(0.0, self.image_jitter_px, 2)
+        m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]], dtype=np.float64)
+        h, w = image.shape
+        return cv2.warpAffine(
+            image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
+        )
+
+    def _close(self) -> None:
+        self.source = None
