@@ -377,8 +377,9 @@ HEALTH = _json_schema(
 
 #: Topic -> schema of everything the appliance writes (one place for names and schemas).
 TOPICS: dict[str, MessageSchema] = {
-    "/cam/left/raw": RAW_IMAGE,
-    "/cam/right/raw": RAW_IMAGE,
+    # Raw frames: written by drivers.camera.mcap_format (image + frame_info per frame).
+    "/camera/left/image": RAW_IMAGE,
+    "/camera/right/image": RAW_IMAGE,
     "/wind/raw": WIND_SAMPLE,
     "/wind/camera": WIND_CAMERA,
     "/pairs": STEREO_PAIR,

@@ -90,7 +90,7 @@ def test_json_schemas_document_and_check_messages() -> None:
 
 
 def test_every_topic_has_a_schema() -> None:
-    assert S.TOPICS["/cam/left/raw"] is S.RAW_IMAGE
+    assert S.TOPICS["/camera/left/image"] is S.RAW_IMAGE
     assert S.TOPICS["/health"] is S.HEALTH
     assert all(isinstance(v, S.MessageSchema) for v in S.TOPICS.values())
 
