@@ -165,23 +165,22 @@ class GillDecoder(Decoder):
                 pos = i
                 break
             ns = host_ns if i >= carried else carry.stamp(i)
-            sample = self._frame(data[i + 1 : j], data[j + 1 : j + 3], ns)
+            check = data[j + 1 : j + 3]
+            sample = self._frame(data[i + 1 : j], check, ns)
             if sample is not None:
                 out.append(sample)
-            pos = j + 3
+            # Consume the checksum only when it looks like one, so that a stray ETX right
+            # before a real frame cannot swallow that frame's STX.
+            pos = j + 3 if _is_hex2(check) else j + 1
         carry.keep(data, pos)
         return out
 
     def _frame(self, payload: bytes, check: bytes, host_ns: int) -> WindSample | None:
         counts = self.counts
-        if len(check) != 2 or not check.isalnum():
+        if not _is_hex2(check):
             counts.malformed += 1
             return None
-        try:
-            expected = int(check, 16)
-        except ValueError:
-            counts.malformed += 1
-            return None
+        expected = int(check, 16)
         if xor_checksum(payload) != expected:
             counts.checksum_failures += 1
             return None
@@ -238,6 +237,13 @@ class GillDecoder(Decoder):
         if valid:
             counts.valid += 1
         return WindSample(host_ns, None, u, v, w, sos, ts, status, text, valid)
+
+
+def _is_hex2(check: bytes) -> bool:
+    return len(check) == 2 and all(c in _HEX for c in check)
+
+
+_HEX = frozenset(b"0123456789ABCDEFabcdef")
 
 
 def _junk(data: bytes, start: int, end: int) -> int:
