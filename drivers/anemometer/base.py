@@ -200,6 +200,13 @@ class Decoder(ABC):
         """End of stream: decode a last message that lacks only its terminator, if any."""
         return []
 
+    def reset_stream(self) -> None:
+        """Forget a partly received message (the line was reopened); counted as a resync."""
+        if self._carry.data:
+            self.counts.resyncs += 1
+            self.counts.skipped_bytes += len(self._carry.data)
+        self._carry.keep(b"", 0)
+
 
 class Anemometer(ABC):
     """Interface of an anemometer back end (python-can's ``BusABC`` pattern).
