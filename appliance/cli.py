@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from appliance import __version__
 
 #: Modules that each register one subcommand (or one member of a group such as ``eval``).
-COMMAND_MODULES: tuple[str, ...] = ()
+COMMAND_MODULES: tuple[str, ...] = ("appliance.commands.wind_decode",)
 
 EXIT_OK = 0
 EXIT_FAILURE = 1

@@ -189,7 +189,12 @@ def test_replay_raw_capture_at_rate(tmp_path: Path) -> None:
     capture.write_bytes(b"".join(format_csat3b(1, 2, 3, 20, 0, i) for i in range(10)))
     replay = make_anemometer("replay", path=str(capture), protocol="campbell_csat3b",
                              format="raw", rate_hz=500)
-    got = [s for _ in range(20) if (s := replay.recv(0.1)) is not None]
+    got = []
+    while not (replay.finished and len(got) >= 10):
+        s = replay.recv(0.1)
+        assert s is not None or replay.finished, "replay stalled"
+        if s is not None:
+            got.append(s)
     assert [s.counter for s in got] == list(range(10)) and replay.finished
 
 

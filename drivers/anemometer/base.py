@@ -80,9 +80,11 @@ class DecoderCounts:
     ``messages`` counts every sample emitted (valid or not); ``valid`` those with
     ``valid=True``; ``status_errors`` those the sensor flagged (their ``valid`` may still be
     True for warnings such as a Gill heater fault). ``checksum_failures`` and ``malformed``
-    messages produce no sample. ``resyncs`` counts every time the decoder had to throw away
-    bytes that were not a clean gap between messages (a partial frame, junk before a frame
-    start); ``skipped_bytes`` how many. ``counter_gaps`` counts jumps in the device counter
+    messages produce no sample. ``skipped_bytes`` counts bytes between or before messages
+    that belong to no message (a logger's time prefix, line noise, another instrument's
+    lines); ``resyncs`` counts messages abandoned part-way (a frame cut off by a new frame
+    start, a line far longer than any message, a partial message dropped on reconnect).
+    ``counter_gaps`` counts jumps in the device counter
     and ``missed_records`` the records those jumps imply.
     """
 

@@ -93,7 +93,6 @@ class CampbellCSAT3BDecoder(LineDecoder):
                         continue
                     sample = self._make(candidate, host_ns)
                     if sample is not None:
-                        counts.resyncs += 1
                         counts.skipped_bytes += p
                         self._start = p
                     return sample

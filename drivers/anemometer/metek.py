@@ -53,7 +53,6 @@ class MetekDecoder(LineDecoder):
         start = m.start()
         self._start = start
         if start and line[:start].strip():
-            counts.resyncs += 1
             counts.skipped_bytes += start
         prefix, x, y, z, t = m.groups()
         xi, yi, zi = int(x), int(y), int(z)

@@ -71,7 +71,6 @@ class Young81000Decoder(LineDecoder):
             first = tokens[-self.fields]
             tail = sum(len(t) for t in tokens[-self.fields + 1 :])
             start = line.rfind(first, 0, len(line) - tail)
-            counts.resyncs += 1
             counts.skipped_bytes += max(0, start)
             self._start = max(0, start)
             tokens = tokens[-self.fields :]
