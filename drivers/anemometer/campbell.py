@@ -14,6 +14,7 @@ lost record and is counted as a counter gap.
 from __future__ import annotations
 
 import math
+import re
 
 from drivers.anemometer.base import WindSample
 from drivers.anemometer.framing import LineDecoder
@@ -23,7 +24,9 @@ SIGNATURE_SEED = 0xAAAA
 # Rotating the low byte left by one bit, precomputed: the inner step of the signature.
 _ROTL = bytes(((b << 1) | (b >> 7)) & 0xFF for b in range(256))
 
-_NUMBER_START = frozenset(b"+-.0123456789nN")
+_NUM = rb"[-+]?(?:\d+(?:\.\d*)?|\.\d+|nan|NAN|NaN)"
+#: A record body (everything before the signature) that ends where the search ends.
+_BODY = re.compile(_NUM + rb"(?:," + _NUM + rb"){3},\d+,\d+$")
 
 
 def campbell_signature(data: bytes, seed: int = SIGNATURE_SEED) -> int:
@@ -73,29 +76,21 @@ class CampbellCSAT3BDecoder(LineDecoder):
         body = line[:cut]
         if cut > 0 and body.count(b",") == 5 and _sig_ok(body, line[cut + 1 :]):
             return self._make(body, host_ns)
-        # Junk before the record on the same line: the record starts after the 7th comma
-        # from the end (if any) and must verify from there.
+        # Junk before the record on the same line (a logger's time prefix, line noise):
+        # try each place where a well-formed record body ends at the last comma, leftmost
+        # first, and keep the first whose signature verifies.
         if cut > 0:
             tail_sig = line[cut + 1 :]
-            low = 0
-            commas = 0
-            for i in range(cut - 1, -1, -1):
-                if line[i] == 0x2C:
-                    commas += 1
-                    if commas == 6:
-                        low = i + 1
-                        break
-            first_comma = body.find(b",", low)
-            for p in range(max(1, low), first_comma if first_comma > 0 else 0):
-                if line[p] in _NUMBER_START and _sig_ok(line[p:cut], tail_sig):
-                    candidate = line[p:cut]
-                    if candidate.count(b",") != 5:
-                        continue
-                    sample = self._make(candidate, host_ns)
+            m = _BODY.search(line, 0, cut)
+            while m is not None:
+                p = m.start()
+                if _sig_ok(line[p:cut], tail_sig):
+                    sample = self._make(line[p:cut], host_ns)
                     if sample is not None:
                         counts.skipped_bytes += p
                         self._start = p
                     return sample
+                m = _BODY.search(line, p + 1, cut)
         if cut > 0 and body.count(b",") == 5 and len(line) - cut - 1 == 4:
             counts.checksum_failures += 1
         else:
