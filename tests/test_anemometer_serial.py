@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -59,9 +60,18 @@ def test_unplug_replug_recovers_and_loses_nothing_after_reconnect(tmp_path: Path
         wait_for(lambda: sum(f.host_ns > connected_ns for f in sensor.sent()) >= n_before + 30)
         sensor.pause()
         sent_after = [(f.u, f.v, f.w) for f in sensor.sent() if f.host_ns > connected_ns]
-        wait_for(lambda: reader.samples.qsize() > 0 and anemometer.counts.messages >= 1)
-        time.sleep(0.2)  # let the last frames through the pty
-        got = [(s.u, s.v, s.w) for s in drain(reader) if s.host_ns > connected_ns]
+        got: list[tuple[float, float, float]] = []
+
+        def all_through() -> bool:
+            got.extend((s.u, s.v, s.w) for s in drain(reader) if s.host_ns > connected_ns)
+            return len(got) >= len(sent_after)
+
+        # Let the last frames through the pty (a loaded CI machine may need a while); a lost
+        # frame shows up in the comparison below.
+        with contextlib.suppress(AssertionError):
+            wait_for(all_through, timeout=5.0)
+        time.sleep(0.05)
+        all_through()
     finally:
         reader.stop()
         sensor.stop()
@@ -146,7 +156,7 @@ def test_simulated_backend_from_registry_reports_true_wind() -> None:
         "simulated", rate_hz=50, wind="constant", mean_wind=(1.5, -0.5, 0.25), **FAST
     )
     try:
-        sample = anemometer.recv(2.0)
+        sample = anemometer.recv(10.0)
         assert sample is not None and sample.valid
         assert (sample.u, sample.v, sample.w) == (1.5, -0.5, 0.25)
         truth = anemometer.sensor.true_wind(sample.host_ns)

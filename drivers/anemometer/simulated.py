@@ -243,13 +243,15 @@ class SimulatedSensor:
         with self._lock:
             if self._paused.is_set():
                 return
-        delivered = self._write(frame)
-        # The wind as it went out: the frame's 3-decimal values, exactly what a decoder gets.
-        sent = SentFrame(
-            index, time.monotonic_ns(), float(f"{u:+07.3f}"), float(f"{v:+07.3f}"),
-            float(f"{w:+07.3f}"), delivered,
-        )
-        with self._lock:
+            # Stamp before the first byte leaves and record under the same lock as the
+            # write, so a reader can never hold a sample older than its frame's record.
+            sent_ns = time.monotonic_ns()
+            delivered = self._write_locked(frame)
+            # The wind as it went out: the frame's 3-decimal values, what a decoder gets.
+            sent = SentFrame(
+                index, sent_ns, float(f"{u:+07.3f}"), float(f"{v:+07.3f}"),
+                float(f"{w:+07.3f}"), delivered,
+            )
             self._sent.append(sent)
             self._sent_ns.append(sent.host_ns)
             if len(self._sent) > 2 * self._history:
@@ -257,38 +259,43 @@ class SimulatedSensor:
 
     def _write(self, data: bytes) -> bool:
         with self._lock:
-            fd = self._master
-            if fd is None:
+            return self._write_locked(data)
+
+    def _write_locked(self, data: bytes) -> bool:
+        fd = self._master
+        if fd is None:
+            return False
+        try:
+            return os.write(fd, data) == len(data)
+        except BlockingIOError:
+            # Nobody reads the port and its buffer is full: the frame is lost, as on a real
+            # line.
+            self.frames_dropped += 1
+            return False
+        except OSError as exc:
+            if exc.errno in (errno.EIO, errno.EBADF):
                 return False
-            try:
-                return os.write(fd, data) == len(data)
-            except BlockingIOError:
-                # Nobody reads the port and its buffer is full: the frame is lost, as on a
-                # real line.
-                self.frames_dropped += 1
-                return False
-            except OSError as exc:
-                if exc.errno in (errno.EIO, errno.EBADF):
-                    return False
-                raise
+            raise
 
     def _serve_input(self, timeout: float) -> None:
-        fd = self._master
+        # The fd is used only under the lock: unplug() cannot close it (and a new pty or the
+        # driver's port reuse its number) between select and read.
+        with self._lock:
+            fd = self._master
+            if fd is not None:
+                try:
+                    ready, _, _ = select.select([fd], [], [], min(timeout, 0.005))
+                    data = os.read(fd, 1024) if ready else b""
+                except OSError:
+                    data = b""
         if fd is None:
             time.sleep(timeout)
             return
-        try:
-            ready, _, _ = select.select([fd], [], [], timeout)
-        except (OSError, ValueError):
-            return  # closed under us by unplug()
-        if not ready:
-            return
-        try:
-            data = os.read(fd, 1024)
-        except (BlockingIOError, OSError):
-            return
-        self._inbuf += data
-        self._handle_commands()
+        if data:
+            self._inbuf += data
+            self._handle_commands()
+        elif timeout > 0.005:
+            time.sleep(min(timeout, 0.005))
 
     def _handle_commands(self) -> None:
         # Gill set-up mode as the sensor presents it: '*' enters, each CR LF terminated
