@@ -247,3 +247,42 @@ def test_reader_drops_oldest_instead_of_blocking() -> None:
     assert [s.counter for s in drain(reader)] == list(range(9, -1, -1))
     assert reader.callback_errors == 1 and isinstance(reader.last_callback_error, RuntimeError)
     assert len(calls) == 100
+
+
+@pytest.mark.parametrize("protocol", ["campbell_csat3b", "young_81000_uvw", "metek_usonic3"])
+def test_simulator_speaks_other_protocols(protocol: str) -> None:
+    anemometer = make_anemometer(
+        "simulated", protocol=protocol, rate_hz=100, wind="turbulent", seed=2, **FAST
+    )
+    try:
+        got = []
+        end = time.monotonic() + 10
+        while len(got) < 5 and time.monotonic() < end:
+            s = anemometer.recv(0.2)
+            if s is not None:
+                got.append(s)
+        assert len(got) == 5 and all(s.valid for s in got)
+        for s in got:
+            truth = anemometer.sensor.true_wind(s.host_ns)
+            assert truth is not None
+        sent = {(f.u, f.v, f.w) for f in anemometer.sensor.sent()}
+        assert all((s.u, s.v, s.w) in sent for s in got)
+        assert anemometer.counts.checksum_failures == anemometer.counts.malformed == 0
+    finally:
+        anemometer.close()
+
+
+def test_replay_of_the_gill_ship_log(tmp_path: Path) -> None:
+    src = DATA / "gill_windobserver" / "NBP1406_mwx1-2014-08-01.part1"
+    capture = tmp_path / "ship.log"
+    capture.write_bytes(b"".join(src.read_bytes().splitlines(keepends=True)[:9]))
+    replay = make_anemometer("replay", path=str(capture), protocol="gill", speed=40.0)
+    got = []
+    end = time.monotonic() + 5
+    while time.monotonic() < end and not (replay.finished and len(got) == 6):
+        s = replay.recv(0.1)
+        if s is not None:
+            got.append(s)
+    # 9 lines: 3 MET lines of another instrument, 6 Gill frames.
+    assert len(got) == 6 and replay.counts.checksum_failures == 0
+    assert got[0].speed_of_sound == 344.0 and got[1].speed_of_sound == 344.54

@@ -1,11 +1,12 @@
-"""A simulated Gill WindMaster on a pseudo terminal, and the back end that reads it.
+"""A simulated anemometer (Gill WindMaster by default) on a pseudo terminal, and its back end.
 
 :class:`SimulatedSensor` is the device side: it creates a pty (``os.openpty``), points a
 symlink you choose (or a temporary one) at its slave end and writes real Gill UVW frames with
-correct checksums at a set rate, with a constant, gusty or turbulent wind (seeded, so runs
-repeat). It records every frame it sent with the true wind, answers Gill set-up mode (``*``,
-commands echoed, ``Q``) like a sensor would, and can be "unplugged" (pty closed) and
-"replugged" (a new pty behind the same symlink) to exercise reconnects.
+correct checksums (or CSAT3B, R.M. Young UVW or METEK lines: ``protocol``) at a set rate,
+with a constant, gusty or turbulent wind (seeded, so runs repeat). It records every frame it
+sent with the true wind, answers Gill set-up mode (``*``, commands echoed, ``Q``) like a
+sensor would, and can be "unplugged" (pty closed) and "replugged" (a new pty behind the same
+symlink) to exercise reconnects.
 
 :class:`SimulatedAnemometer` (registry name ``simulated``) runs such a sensor and reads it
 through :class:`~drivers.anemometer.serial_transport.SerialAnemometer`, so the default
@@ -31,7 +32,22 @@ from typing import Any
 import numpy as np
 
 from drivers.anemometer.base import Anemometer, AnemometerConfigError, DecoderCounts, WindSample
+from drivers.anemometer.campbell import format_csat3b
 from drivers.anemometer.gill import format_gill_uvw
+from drivers.anemometer.metek import format_metek
+from drivers.anemometer.registry import make_decoder
+from drivers.anemometer.young import format_young
+
+#: Protocols the simulator can speak -> encoder of (index, u, v, w, sos, ts, node) in the
+#: protocol's own axes and units.
+ENCODERS = {
+    "gill": lambda k, u, v, w, c, t, node: format_gill_uvw(u, v, w, c, t, 0, node=node),
+    "campbell_csat3b": lambda k, u, v, w, c, t, node: format_csat3b(u, v, w, t, 0, k % 256),
+    "young_81000_uvw": lambda k, u, v, w, c, t, node: format_young(u, v, w, c, t, uvw=True),
+    "metek_usonic3": lambda k, u, v, w, c, t, node: format_metek(
+        round(100 * u), round(100 * v), round(100 * w), round(100 * t)
+    ),
+}
 
 WIND_KINDS = ("constant", "gusty", "turbulent")
 
@@ -120,6 +136,10 @@ class SimulatedSensor:
     rate_hz : float
         Frames per second.
     wind : WindModel
+        The true wind, in the protocol's own axes.
+    protocol : str
+        One of :data:`ENCODERS` (default Gill WindMaster UVW). Set-up mode is answered for
+        Gill only.
     link_path : str, optional
         Where to put the symlink to the pty slave (the port the driver opens). Default: a
         temporary directory of its own.
@@ -134,6 +154,7 @@ class SimulatedSensor:
         rate_hz: float = 20.0,
         wind: WindModel | None = None,
         *,
+        protocol: str = "gill",
         link_path: str | None = None,
         node: str = "Q",
         temperature_c: float = 20.0,
@@ -141,7 +162,12 @@ class SimulatedSensor:
     ) -> None:
         if not 0 < rate_hz <= 1000:
             raise AnemometerConfigError(f"rate_hz must be in (0, 1000], got {rate_hz!r}")
+        if protocol not in ENCODERS:
+            raise AnemometerConfigError(
+                f"the simulator speaks {sorted(ENCODERS)}, not {protocol!r}"
+            )
         self.rate_hz = rate_hz
+        self.protocol = protocol
         self.wind = wind or WindModel()
         self.node = node
         self.temperature_c = temperature_c
@@ -239,7 +265,10 @@ class SimulatedSensor:
         u, v, w = self.wind.at(t_s)
         temp = self.temperature_c
         sos = math.sqrt(403.0 * (temp + 273.15))
-        frame = format_gill_uvw(u, v, w, sos, temp, 0, node=self.node)
+        frame = ENCODERS[self.protocol](index, u, v, w, sos, temp, self.node)
+        # The wind as it goes out, exactly as a decoder will read it back (rounded by the
+        # format): decoded from the frame itself.
+        (echo,) = make_decoder(self.protocol).decode_all(frame)
         with self._lock:
             if self._paused.is_set():
                 return
@@ -247,11 +276,7 @@ class SimulatedSensor:
             # write, so a reader can never hold a sample older than its frame's record.
             sent_ns = time.monotonic_ns()
             delivered = self._write_locked(frame)
-            # The wind as it went out: the frame's 3-decimal values, what a decoder gets.
-            sent = SentFrame(
-                index, sent_ns, float(f"{u:+07.3f}"), float(f"{v:+07.3f}"),
-                float(f"{w:+07.3f}"), delivered,
-            )
+            sent = SentFrame(index, sent_ns, echo.u, echo.v, echo.w, delivered)
             self._sent.append(sent)
             self._sent_ns.append(sent.host_ns)
             if len(self._sent) > 2 * self._history:
@@ -298,6 +323,9 @@ class SimulatedSensor:
             time.sleep(min(timeout, 0.005))
 
     def _handle_commands(self) -> None:
+        if self.protocol != "gill":
+            self._inbuf = b""
+            return
         # Gill set-up mode as the sensor presents it: '*' enters, each CR LF terminated
         # command is echoed, 'Q' leaves; anything else is refused.
         if not self._config_mode:
@@ -354,10 +382,12 @@ class SimulatedAnemometer(Anemometer):
     rate_hz : float
     wind : {"constant", "gusty", "turbulent"}
     mean_wind : sequence of 3 float
-        Mean (u, v, w) in the Gill sensor axes, m/s.
+        Mean (u, v, w) in the protocol's own axes, m/s.
     seed : int
     link_path : str, optional
         Symlink to the pty (default: a temporary path).
+    protocol : str
+        What the simulated sensor speaks (:data:`ENCODERS`; default Gill UVW).
     **serial_options
         Passed to :class:`~drivers.anemometer.serial_transport.SerialAnemometer`
         (``reopen_after_s``, ``gill_setup``, ...).
@@ -372,15 +402,20 @@ class SimulatedAnemometer(Anemometer):
         mean_wind: Sequence[float] = (3.0, 0.0, 0.0),
         seed: int = 0,
         link_path: str | None = None,
+        protocol: str = "gill",
         **serial_options: Any,
     ) -> None:
         from drivers.anemometer.serial_transport import SerialAnemometer
 
         super().__init__()
-        self.sensor = SimulatedSensor(rate_hz, WindModel(wind, mean_wind, seed=seed),
-                                      link_path=link_path).start()
+        self.sensor = SimulatedSensor(
+            rate_hz,
+            WindModel(wind, mean_wind, seed=seed),
+            protocol=protocol,
+            link_path=link_path,
+        ).start()
         try:
-            self.serial = SerialAnemometer("gill", self.sensor.link_path, **serial_options)
+            self.serial = SerialAnemometer(protocol, self.sensor.link_path, **serial_options)
         except Exception:
             self.sensor.stop()
             raise
