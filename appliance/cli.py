@@ -27,6 +27,9 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.eval_footage",
     "appliance.commands.simulate",
     "appliance.commands.eval_stereo",
+    "appliance.commands.wind_decode",
+    "appliance.commands.run",
+    "appliance.commands.export",
 )
 
 EXIT_OK = 0

@@ -46,7 +46,6 @@ __all__ = [
     "ConfigError",
     "HealthConfig",
     "LiveConfig",
-    "MountingConfig",
     "PairingConfig",
     "ProcessingConfig",
     "RecordingConfig",
@@ -108,33 +107,15 @@ class CamerasConfig:
     right: CameraConfig = _opt("right camera", factory=CameraConfig)
 
 
-def _identity3() -> list[list[float]]:
-    return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-
-
-@dataclass(frozen=True)
-class MountingConfig:
-    """Where the anemometer sits relative to the left camera."""
-
-    rotation: list[list[float]] = _opt(
-        "3x3 rotation (row-major) taking a wind vector from the sensor's axes into the left "
-        "camera frame (X right, Y down, Z forward)",
-        factory=_identity3, shape=(3, 3), orthonormal=True,
-    )
-    position_m: list[float] = _opt(
-        "sensor position in the left camera frame, metres (informational)",
-        factory=lambda: [0.0, 0.0, 0.0], shape=(3,),
-    )
-
-
 @dataclass(frozen=True)
 class AnemometerConfig:
     """The 3D ultrasonic anemometer on a serial line."""
 
     backend: str = _opt("anemometer back end (simulated, serial, replay, ...)", "simulated",
                         nonempty=True)
-    protocol: str = _opt("wire protocol of the sensor (gill, csat3b, young81000, metek, ...)",
-                         "gill", nonempty=True)
+    protocol: str = _opt(
+        "wire protocol of the sensor (gill, gill_polar, campbell_csat3b, young_81000, "
+        "young_81000_uvw, metek_usonic3)", "gill", nonempty=True)
     port: str | None = _opt(
         "serial port URL for pyserial (/dev/ttyUSB0, loop://, spy:///dev/ttyUSB0); null lets "
         "the simulated back end create its own pseudo terminal", None,
@@ -143,7 +124,10 @@ class AnemometerConfig:
     parity: Literal["N", "E", "O", "M", "S"] = _opt("parity: N, E, O, M or S", "N")
     options: dict[str, Any] = _opt("back-end specific options, checked by the back end",
                                    factory=dict)
-    mounting: MountingConfig = _opt("mounting of the sensor", factory=MountingConfig)
+    mounting: dict[str, Any] = _opt(
+        "mounting into the left camera frame: azimuth_deg / tilt_deg / roll_deg, or a 3x3 "
+        "'matrix' (rows X, Y, Z; columns the sensor's F, L, U), and optionally "
+        "'native_axes'; checked by drivers.anemometer.mounting", factory=dict)
 
 
 @dataclass(frozen=True)
@@ -443,6 +427,13 @@ def _cross_checks(cfg: Config, errors: list[str]) -> None:
             f"recording.quota_gb: {cfg.recording.quota_gb} GB cannot hold two files of "
             f"recording.rotate_mb = {cfg.recording.rotate_mb} MB; raise the quota or rotate "
             f"sooner")
+    from drivers.anemometer.base import AnemometerConfigError
+    from drivers.anemometer.mounting import Mounting
+
+    try:
+        Mounting.from_config(cfg.anemometer.protocol, cfg.anemometer.mounting)
+    except AnemometerConfigError as exc:
+        errors.append(f"anemometer.mounting: {exc}")
     if cfg.calibration is not None and not cfg.calibration.is_file():
         errors.append(f"calibration: file not found: {str(cfg.calibration)!r}")
 
