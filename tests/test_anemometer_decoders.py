@@ -24,29 +24,42 @@ speed = st.floats(-30, 30, allow_nan=False)
 
 def gill_msg(draw: st.DrawFn) -> bytes:
     return format_gill_uvw(
-        draw(speed), draw(speed), draw(speed), draw(st.floats(320, 360)), draw(st.floats(-20, 40)),
+        draw(speed),
+        draw(speed),
+        draw(speed),
+        draw(st.floats(320, 360)),
+        draw(st.floats(-20, 40)),
         draw(st.sampled_from([0x00, 0x0B, 0x60, 0x01])),
     )
 
 
 def csat_msg(draw: st.DrawFn) -> bytes:
     return format_csat3b(
-        draw(speed), draw(speed), draw(speed), draw(st.floats(-20, 40)),
-        draw(st.sampled_from([0, 0, 4])), draw(st.integers(0, 255)),
+        draw(speed),
+        draw(speed),
+        draw(speed),
+        draw(st.floats(-20, 40)),
+        draw(st.sampled_from([0, 0, 4])),
+        draw(st.integers(0, 255)),
     )
 
 
 def young_msg(draw: st.DrawFn) -> bytes:
     return format_young(
-        draw(st.floats(0, 30)), draw(st.floats(0, 359.9)), draw(st.floats(-60, 60)),
-        draw(st.floats(320, 360)), draw(st.floats(-20, 40)),
+        draw(st.floats(0, 30)),
+        draw(st.floats(0, 359.9)),
+        draw(st.floats(-60, 60)),
+        draw(st.floats(320, 360)),
+        draw(st.floats(-20, 40)),
     )
 
 
 def metek_msg(draw: st.DrawFn) -> bytes:
     return format_metek(
-        draw(st.integers(-3000, 3000)), draw(st.integers(-3000, 3000)),
-        draw(st.integers(-3000, 3000)), draw(st.integers(-2000, 4000)),
+        draw(st.integers(-3000, 3000)),
+        draw(st.integers(-3000, 3000)),
+        draw(st.integers(-3000, 3000)),
+        draw(st.integers(-2000, 4000)),
         draw(st.sampled_from(["M", "H", "D"])),
     )
 
@@ -120,8 +133,7 @@ def test_split_stream_recovers_every_message_with_first_byte_stamp(protocol: str
     decoder = factory()
     got = _feed(decoder, stream, cuts)
     want = [
-        _alone(factory, m, 1000 * _chunk_of(s, cuts))
-        for m, s in zip(msgs, starts, strict=True)
+        _alone(factory, m, 1000 * _chunk_of(s, cuts)) for m, s in zip(msgs, starts, strict=True)
     ]
     assert len(got) == len(want)
     for g, w in zip(got, want, strict=True):
@@ -137,8 +149,7 @@ def test_junk_between_messages_loses_no_message(protocol: str, data) -> None:
     factory, msgs, starts, stream, cuts = _stream(data.draw, protocol, junk=True)
     got = _feed(factory(), stream, cuts)
     want = [
-        _alone(factory, m, 1000 * _chunk_of(s, cuts))
-        for m, s in zip(msgs, starts, strict=True)
+        _alone(factory, m, 1000 * _chunk_of(s, cuts)) for m, s in zip(msgs, starts, strict=True)
     ]
     # Every sent message comes out, in order, with its first byte's stamp; junk may add
     # nothing else for the checksummed protocols.
@@ -259,8 +270,12 @@ def test_young_polar_and_uvw() -> None:
 
 def test_metek_units_and_prefixes() -> None:
     d = MetekDecoder()
-    out = d.decode_all(format_metek(-123, 456, -78, 2345) + format_metek(1, 1, 1, 1, "H")
-                       + format_metek(1, 1, 1, 1, "D") + b"M:x = garbage\r\n")
+    out = d.decode_all(
+        format_metek(-123, 456, -78, 2345)
+        + format_metek(1, 1, 1, 1, "H")
+        + format_metek(1, 1, 1, 1, "D")
+        + b"M:x = garbage\r\n"
+    )
     assert (out[0].u, out[0].v, out[0].w, out[0].sonic_temperature) == (-1.23, 4.56, -0.78, 23.45)
     assert out[1].valid and not out[2].valid
     assert d.counts.status_errors == 1 and d.counts.malformed == 1
@@ -283,3 +298,40 @@ def test_gill_stray_etx_cannot_swallow_next_frame() -> None:
     d = GillDecoder()
     out = d.decode_all(b"\x02junk\x03" + good)
     assert len(out) == 1 and d.counts.malformed == 1
+
+
+TOKENS = [
+    b"\x02",
+    b"\x03",
+    b",",
+    b"\r",
+    b"\n",
+    b"M:x =",
+    b" y = ",
+    b"1",
+    b"-",
+    b".",
+    b"A",
+    b"nan",
+    b" ",
+    b"3c57",
+    b"FF",
+    b"\x00",
+    b"\xff",
+    b"+344.54",
+    b"60",
+]
+
+
+@pytest.mark.parametrize("protocol", sorted(PROTOCOLS))
+@settings(max_examples=80, deadline=None, derandomize=True)
+@given(
+    tokens=st.lists(st.sampled_from(TOKENS), max_size=120),
+    cuts=st.lists(st.integers(0, 400), max_size=8),
+)
+def test_protocol_like_noise_never_raises(protocol: str, tokens: list[bytes], cuts) -> None:
+    data = b"".join(tokens)
+    decoder = make_decoder(protocol)
+    out = _feed(decoder, data, sorted(c for c in set(cuts) if 0 < c < len(data)))
+    assert all(isinstance(s, WindSample) for s in out)
+    assert decoder.counts.messages == len(out)

@@ -73,28 +73,30 @@ class CampbellCSAT3BDecoder(LineDecoder):
         self._start = 0
         counts = self.counts
         cut = line.rfind(b",")
-        body = line[:cut]
-        if cut > 0 and body.count(b",") == 5 and _sig_ok(body, line[cut + 1 :]):
-            return self._make(body, host_ns)
-        # Junk before the record on the same line (a logger's time prefix, line noise):
-        # try each place where a well-formed record body ends at the last comma, leftmost
-        # first, and keep the first whose signature verifies.
-        if cut > 0:
-            tail_sig = line[cut + 1 :]
-            m = _BODY.search(line, 0, cut)
-            while m is not None:
-                p = m.start()
-                if _sig_ok(line[p:cut], tail_sig):
-                    sample = self._make(line[p:cut], host_ns)
-                    if sample is not None:
-                        counts.skipped_bytes += p
-                        self._start = p
-                    return sample
-                m = _BODY.search(line, p + 1, cut)
-        if cut > 0 and body.count(b",") == 5 and len(line) - cut - 1 == 4:
-            counts.checksum_failures += 1
-        else:
+        sig = line[cut + 1 :]
+        if cut <= 0 or not _is_sig(sig):
             counts.malformed += 1
+            return None
+        # The record is the well-formed body ending at the last comma. Junk may precede it on
+        # the same line (a logger's time prefix, line noise): try each start where a
+        # well-formed body begins, leftmost first (normally 0), and keep the first whose
+        # signature verifies.
+        expected = int(sig, 16)
+        m = _BODY.search(line, 0, cut)
+        if m is None:
+            counts.malformed += 1
+            return None
+        while m is not None:
+            p = m.start()
+            body = line[p:cut]
+            if campbell_signature(body) == expected:
+                sample = self._make(body, host_ns)
+                if sample is not None and p:
+                    counts.skipped_bytes += p
+                    self._start = p
+                return sample
+            m = _BODY.search(line, p + 1, cut)
+        counts.checksum_failures += 1
         return None
 
     def _make(self, body: bytes, host_ns: int) -> WindSample | None:
@@ -134,11 +136,8 @@ class CampbellCSAT3BDecoder(LineDecoder):
         return WindSample(host_ns, counter, ux, uy, uz, sos, ts, diag, text, valid)
 
 
-def _sig_ok(body: bytes, sig: bytes) -> bool:
-    if len(sig) != 4:
-        return False
-    try:
-        expected = int(sig, 16)
-    except ValueError:
-        return False
-    return campbell_signature(body) == expected
+_HEX = frozenset(b"0123456789abcdefABCDEF")
+
+
+def _is_sig(sig: bytes) -> bool:
+    return len(sig) == 4 and all(c in _HEX for c in sig)

@@ -42,7 +42,7 @@ class LineDecoder(Decoder):
         for line in lines:
             if first:
                 first = False
-                if carried and line:
+                if carried and line and not line.isspace():
                     # This line began in carried bytes: stamp it by its first message byte.
                     self._start = 0
                     sample = decode(line, carry.stamp(0))
@@ -51,7 +51,7 @@ class LineDecoder(Decoder):
                             sample = dataclasses.replace(sample, host_ns=carry.stamp(self._start))
                         out.append(sample)
                     continue
-            if line:
+            if line and not line.isspace():
                 sample = decode(line, host_ns)
                 if sample is not None:
                     out.append(sample)

@@ -13,7 +13,7 @@ import queue
 import threading
 from collections.abc import Callable
 
-from drivers.anemometer.base import Anemometer, WindSample
+from drivers.anemometer.base import Anemometer, AnemometerError, WindSample
 from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import Mounting
 
@@ -101,7 +101,11 @@ class AnemometerReader:
     def _run(self) -> None:
         recv = self.anemometer.recv
         while not self._stop.is_set():
-            sample = recv(self.poll_s)
+            try:
+                sample = recv(self.poll_s)
+            except AnemometerError:
+                # The anemometer was closed under us: nothing more will come.
+                return
             if sample is not None:
                 self._deliver(sample)
 
