@@ -170,7 +170,7 @@ class Appliance:
         from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
 
         backoff = 0.5
-        stream = self.health.stream(f"cam_{side}")
+        stream = self.health.stream(f"cam/{side}")
         cache: dict[str, schemas.MessageSchema] = {}
         while not self.stop_event.is_set():
             camera = None
@@ -532,7 +532,36 @@ class Appliance:
             f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
             f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
             f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+        comparison = self.truth_comparison()
+        if comparison is not None:
+            sys.stderr.write(
+                "ogiflow: simulated ground truth vs measured mean gas velocity over "
+                f"{comparison['frames']} valid frames: truth "
+                f"{_fmt(comparison['truth_m_s'])} m/s, measured "
+                f"{_fmt(comparison['measured_m_s'])} m/s, magnitude error "
+                f"{comparison['magnitude_error_pct']:.1f} %, direction error "
+                f"{comparison['direction_error_deg']:.1f} deg\n")
         return code
+
+    def truth_comparison(self) -> dict[str, Any] | None:
+        """Mean measured vs mean true gas velocity over the valid frames of a simulated run.
+
+        Only frames with a valid summary and a ground truth (not wrapping the scene loop)
+        count; None when there is none.
+        """
+        pairs = [(np.asarray(s["mean_velocity_m_s"], dtype=np.float64), truth)
+                 for _t, truth, s in self.truth_log
+                 if truth is not None and s["valid"] and s["mean_velocity_m_s"] is not None]
+        if not pairs:
+            return None
+        measured = np.mean([m for m, _ in pairs], axis=0)
+        truth = np.mean([t for _, t in pairs], axis=0)
+        nt, nm = float(np.linalg.norm(truth)), float(np.linalg.norm(measured))
+        cos = float(np.clip(measured @ truth / (nm * nt), -1, 1)) if nm > 0 and nt > 0 else 1.0
+        return {"frames": len(pairs), "truth_m_s": truth.tolist(),
+                "measured_m_s": measured.tolist(),
+                "magnitude_error_pct": 100.0 * abs(nm - nt) / nt if nt > 0 else float("nan"),
+                "direction_error_deg": float(np.degrees(np.arccos(cos)))}
 
     def _spawn(self, target: Any, name: str, *args: Any) -> None:
         t = threading.Thread(target=target, name=name, args=args, daemon=True)
@@ -553,7 +582,7 @@ class Appliance:
             "wind_samples": c.wind_samples,
         }
         if self.recorder is not None:
-            out["recorder_drops"] = int(sum(self.recorder.stats().drops.values()))
+            out["recorder_drops"] = int(self.recorder.stats().messages_dropped)
         if self.live is not None:
             out["live_drops"] = int(self.live.stats().dropped)
         if self.ring is not None:
@@ -578,7 +607,7 @@ class Appliance:
             options.setdefault("mean_wind", SIMULATED_MEAN_WIND)
         if a.backend == "serial":
             options.setdefault("protocol", a.protocol)
-            options.setdefault("port", a.port)
+            options.setdefault("url", a.port)
             options.setdefault("baudrate", a.baud)
             options.setdefault("parity", a.parity)
         self._anemometer = make_anemometer(a.backend, **options)
@@ -599,6 +628,10 @@ class Appliance:
         sensor = np.asarray(a.options.get("mean_wind", SIMULATED_MEAN_WIND), dtype=np.float64)
         v = self._mounting.rotation @ sensor
         return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _fmt(v: Any) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
 
 
 def _finite(x: Any) -> float:

@@ -102,6 +102,8 @@ class LiveFrame:
         Mean gas velocity magnitude and directional angles to X, Y, Z (paper footnote 1).
     wind_speed_m_s, wind_angles_deg
         The anemometer's wind in the camera frame at this pair's time.
+    truth_speed_m_s, truth_angles_deg
+        Simulated runs only: the simulator's true mean gas velocity for this triple.
     """
 
     frame: int
@@ -117,6 +119,8 @@ class LiveFrame:
     gas_angles_deg: tuple[float, float, float] | None = None
     wind_speed_m_s: float | None = None
     wind_angles_deg: tuple[float, float, float] | None = None
+    truth_speed_m_s: float | None = None
+    truth_angles_deg: tuple[float, float, float] | None = None
 
 
 @dataclass
@@ -518,7 +522,8 @@ class LiveView:
             self._log("gas/velocity3d", rr.Arrows3D(origins=pts, vectors=vel * ARROW_SCALE_S,
                                                     colors=[GAS_COLOR]))
         for src, speed, angles in (("gas", f.gas_speed_m_s, f.gas_angles_deg),
-                                   ("wind", f.wind_speed_m_s, f.wind_angles_deg)):
+                                   ("wind", f.wind_speed_m_s, f.wind_angles_deg),
+                                   ("truth", f.truth_speed_m_s, f.truth_angles_deg)):
             if speed is not None and np.isfinite(speed):
                 self._log(f"plots/speed/{src}", rr.Scalars(float(speed)))
             if angles is not None:

@@ -126,7 +126,8 @@ def worker_main(
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     _single_threaded()
-    ring = PairRing.attach(ring_handle)
+    # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
+    ring = PairRing.attach(ring_handle, shared_tracker=True)
     state = ChainState()
     torn = 0
     try:

@@ -174,15 +174,22 @@ class PairRing:
         return ring
 
     @classmethod
-    def attach(cls, handle: RingHandle) -> PairRing:
-        """Attach to an existing ring by handle (the reader side, in a worker process)."""
+    def attach(cls, handle: RingHandle, *, shared_tracker: bool = False) -> PairRing:
+        """Attach to an existing ring by handle (the reader side, in a worker process).
+
+        ``shared_tracker``: True for a process started by ``multiprocessing`` from the
+        creator, which shares the creator's resource tracker. Otherwise (an independent
+        process) Python < 3.13 registers the attached segment with the process's own tracker,
+        which would unlink the ring when the reader exits, so the registration is dropped;
+        doing that in a child that shares the creator's tracker would instead drop the
+        creator's registration.
+        """
         shm = shared_memory.SharedMemory(name=handle.name)
-        # Python < 3.13 registers attached segments with the resource tracker, which would
-        # unlink the ring when this worker exits; only the creator owns it.
-        try:
-            resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
-        except (AttributeError, KeyError, ValueError):
-            pass
+        if not shared_tracker:
+            try:
+                resource_tracker.unregister(shm._name, "shared_memory")  # type: ignore[attr-defined]
+            except (AttributeError, KeyError, ValueError):
+                pass
         return cls(shm, handle.capacity, handle.shape, np.dtype(handle.dtype), handle.lock,
                    owner=False)
 
