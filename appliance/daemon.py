@@ -34,6 +34,7 @@ import numpy as np
 from appliance import schemas
 from appliance.config import Config
 from appliance.pipeline import WorkerResult, worker_main
+from appliance.results import ResultPublisher, StereoStamper
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -48,15 +49,6 @@ SIMULATED_MEAN_WIND = (0.3, -1.5, 0.0)
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_CONFIG = 2
-
-
-def directional_angles(v: np.ndarray) -> tuple[float, float, float] | None:
-    """Angles of a vector to X, Y, Z in degrees (paper footnote 1); None for a zero vector."""
-    n = float(np.linalg.norm(v))
-    if not np.isfinite(n) or n == 0.0:
-        return None
-    c = np.clip(np.asarray(v, dtype=np.float64) / n, -1.0, 1.0)
-    return tuple(float(a) for a in np.degrees(np.arccos(c)))  # type: ignore[return-value]
 
 
 @dataclass
@@ -103,20 +95,12 @@ class Appliance:
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         self.live_url: str | None = None
-        self.truth_log: list[tuple[int, np.ndarray | None, dict[str, Any]]] = []
 
     # ------------------------------------------------------------------ helpers
 
     def wall_ns(self, mono_ns: int) -> int:
         """Wall-clock UNIX ns of a host monotonic time (offset fixed at start)."""
         return int(mono_ns + self._t_wall0)
-
-    def _record_json(self, topic: str, schema: schemas.MessageSchema, obj: dict[str, Any],
-                     mono_ns: int) -> None:
-        if self.recorder is None:
-            return
-        payload = schemas.encode_json(schema, obj, validate=False)
-        self.recorder.record(topic, schema, payload, self.wall_ns(mono_ns), mono_ns)
 
     # ------------------------------------------------------------------ set-up
 
@@ -225,14 +209,7 @@ class Appliance:
 
     def _pairing_loop(self) -> None:
         """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
-        from appliance.clock import ClockModel
-        from appliance.pairing import StereoPairer
-
-        period = int(1e9 / self.cfg.cameras.left.frame_rate_hz)
-        tol = self.cfg.pairing.tolerance_s
-        pairer: StereoPairer[Any] = StereoPairer(
-            period, tolerance_ns=None if tol is None else int(tol * 1e9))
-        clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
+        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz, self.cfg.pairing.tolerance_s)
         stream = self.health.stream("pairs")
         index = 0
         while True:
@@ -241,39 +218,32 @@ class Appliance:
             except queue.Empty:
                 if self.stop_event.is_set():
                     break
-                pairs = pairer.poll(time.monotonic_ns())
+                pairs = stamper.poll(time.monotonic_ns())
             else:
-                t = clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
-                pairs = pairer.push(side, t, frame, now_ns=time.monotonic_ns())
+                pairs = stamper.push(side, frame, time.monotonic_ns())
             for p in pairs:
                 self._write_pair(index, p)
                 stream.tick()
                 index += 1
-        self.unpaired = {s: pairer.stats.unpaired(s) for s in SIDES}
+        self.unpaired = stamper.unpaired()
 
     def _write_pair(self, index: int, p: Any) -> None:
         left, right = p.left, p.right
-        t_mono = p.time_ns
         self.ring.write(left.image, right.image, pair_index=index, left_seq=left.seq,
                         right_seq=right.seq, t_left_mono_ns=p.left_ns, t_right_mono_ns=p.right_ns,
-                        t_wall_ns=self.wall_ns(t_mono))
+                        t_wall_ns=self.wall_ns(p.time_ns))
         self.counters.pairs += 1
         with self._pair_lock:
             self._pair_frame_ids[index] = left.device_frame_id
             while len(self._pair_frame_ids) > 4 * self.cfg.ring.capacity + 64:
                 self._pair_frame_ids.popitem(last=False)
-        self._record_json("/pairs", schemas.STEREO_PAIR, {
-            "pair_index": index, "left_seq": left.seq, "right_seq": right.seq,
-            "t_left_mono_ns": p.left_ns, "t_right_mono_ns": p.right_ns, "t_mono_ns": t_mono,
-            "t_wall_ns": self.wall_ns(t_mono), "dt_ns": p.residual_ns,
-            "t_left_device_ns": left.device_ts_ns, "t_right_device_ns": right.device_ts_ns,
-        }, t_mono)
+        self.publisher.record_pair(index, p)
 
     def _on_wind(self, sample: Any) -> None:
         """Reader-thread callback: record the raw sample (never blocks)."""
         self.counters.wind_samples += 1
         self.health.stream("wind").tick()
-        self._record_json("/wind/raw", schemas.WIND_SAMPLE, {
+        self.publisher.record_json("/wind/raw", schemas.WIND_SAMPLE, {
             "t_mono_ns": sample.host_ns, "t_wall_ns": self.wall_ns(sample.host_ns),
             "t_device": sample.counter, "sensor": self.cfg.anemometer.protocol,
             "u": _finite(sample.u), "v": _finite(sample.v), "w": _finite(sample.w),
@@ -296,66 +266,14 @@ class Appliance:
                 log.exception("result of pair %s could not be handled", res.pair_indices)
 
     def _handle_result(self, res: WorkerResult) -> None:
-        from appliance.live import LiveFrame
-
         self.counters.skipped_pairs += res.skipped
-        t1 = res.t_mono_ns[1]
-        latency_ms = (res.done_mono_ns - res.t_mono_ns[2]) / 1e6
-        self.health.latency("processing").add(latency_ms)
+        self.health.latency("processing").add((res.done_mono_ns - res.t_mono_ns[2]) / 1e6)
         self.health.stream("results").tick()
         if res.error is not None:
             self.counters.result_errors += 1
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
-            return
-        self.counters.results += 1
-        s = res.summary
-        flags = list(s.get("flags", []))
-        if res.rejected_shifts:
-            flags.append("registration_rejected")
-        summary = {
-            "t_mono_ns": t1, "t_wall_ns": self.wall_ns(t1), "pair_index": res.pair_indices[1],
-            "gas_pixels": int(s.get("gas_pixel_count") or 0),
-            "mean_velocity_m_s": s.get("mean_velocity"), "speed_m_s": s.get("speed"),
-            "angles_deg": s.get("angles_deg"), "c_usf": s.get("c_usf"),
-            "latency_ms": latency_ms, "skipped_pairs": int(res.skipped),
-            "valid": bool(s.get("valid")), "flags": flags,
-        }
-        self._record_json("/sceneflow/summary", schemas.SCENEFLOW_SUMMARY, summary, t1)
-        wind = self._wind_at(t1, res.pair_indices[1])
-        truth = self._truth_for(res.pair_indices[0])
-        self.truth_log.append((t1, truth, summary))
-        every = self.cfg.recording.fields_every
-        if self.recorder is not None and self.counters.results % every == 0:
-            self._record_fields(res, t1)
-        if self.live is not None:
-            speed = summary["speed_m_s"]
-            self.live.push(LiveFrame(
-                frame=res.pair_indices[1], t_capture_ns=self.wall_ns(t1),
-                diff_left=res.diff_left, diff_right=res.diff_right, flow=res.flow,
-                disparity=np.where(res.valid, res.disparity, np.nan).astype(np.float32),
-                gas_mask=res.gas_mask, points3d=res.points3d, velocity3d=res.velocity3d,
-                gas_speed_m_s=speed if summary["valid"] else None,
-                gas_angles_deg=tuple(summary["angles_deg"]) if summary["valid"]
-                and summary["angles_deg"] else None,
-                wind_speed_m_s=None if wind is None else float(np.linalg.norm(wind)),
-                wind_angles_deg=None if wind is None else directional_angles(wind),
-                truth_speed_m_s=None if truth is None else float(np.linalg.norm(truth)),
-                truth_angles_deg=None if truth is None else directional_angles(truth),
-            ))
-
-    def _wind_at(self, t_mono: int, pair_index: int) -> np.ndarray | None:
-        if self.history is None:
-            return None
-        at = self.history.at(t_mono)
-        if not at.ok:
-            return None
-        v = np.asarray(at.vector, dtype=np.float64)
-        self._record_json("/wind/camera", schemas.WIND_CAMERA, {
-            "t_mono_ns": t_mono, "t_wall_ns": self.wall_ns(t_mono), "pair_index": pair_index,
-            "velocity_m_s": [float(x) for x in v], "speed_m_s": float(np.linalg.norm(v)),
-            "angles_deg": directional_angles(v), "interpolated": at.span_ns > 0,
-        }, t_mono)
-        return v
+        elif self.publisher.publish(res) is not None:
+            self.counters.results += 1
 
     def _truth_for(self, pair_index0: int) -> np.ndarray | None:
         """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""
@@ -367,30 +285,6 @@ class Appliance:
         if k0 is None or k2 is None or k2 - k0 != 2:
             return None  # a dropped frame: the triple is not three consecutive scene frames
         return self.truth.mean_velocity(k0)
-
-    def _record_fields(self, res: WorkerResult, t1: int) -> None:
-        import cv2
-
-        wall = self.wall_ns(t1)
-        for side, img in (("left", res.diff_left), ("right", res.diff_right)):
-            ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-            if ok:
-                payload = schemas.compressed_image(jpg.tobytes(), wall, f"camera_{side}")
-                self.recorder.record(f"/cam/{side}/diff", schemas.COMPRESSED_IMAGE, payload,
-                                     wall, t1)
-        grids = (
-            ("/sceneflow/flow", res.flow, ("u", "v")),
-            ("/sceneflow/disparity", np.stack([res.disparity, res.disparity_change], -1),
-             ("d", "d_change")),
-            ("/sceneflow/velocity", res.velocity, ("vx", "vy", "vz")),
-        )
-        for topic, arr, names in grids:
-            self.recorder.record(topic, schemas.GRID,
-                                 schemas.grid(arr, wall, "camera_left", names), wall, t1)
-        ok, png = cv2.imencode(".png", res.gas_mask.astype(np.uint8) * 255)
-        if ok:
-            payload = schemas.compressed_image(png.tobytes(), wall, "camera_left", "png")
-            self.recorder.record("/sceneflow/mask", schemas.COMPRESSED_IMAGE, payload, wall, t1)
 
     # ------------------------------------------------------------------ run
 
@@ -435,12 +329,19 @@ class Appliance:
                 log.warning("recovered %s after a crash", rep)
             cal_text = (Path(cfg.calibration).read_text() if cfg.calibration is not None
                         else None)
-            self.recorder = Recorder(cfg.recording, file_metadata(cfg, cal_text)).start()
+            metadata = file_metadata(cfg, cal_text)
+            metadata.update(processing_metadata(self.geometry, params))
+            self.recorder = Recorder(cfg.recording, metadata).start()
         if cfg.live.mode != "off":
             from appliance.live import LiveView
 
             self.live = LiveView(cfg.live).start()
             self.live_url = getattr(self.live, "url", None)
+
+        self.publisher = ResultPublisher(
+            self.recorder, self.live, self.wall_ns, cfg.recording.fields_every,
+            wind_at=self.history.at if self.history is not None else None,
+            truth_for=self._truth_for if self.truth is not None else None)
 
         from appliance.ring import PairRing
 
@@ -532,7 +433,7 @@ class Appliance:
             f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
             f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
             f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
-        comparison = self.truth_comparison()
+        comparison = self.publisher.truth_comparison()
         if comparison is not None:
             sys.stderr.write(
                 "ogiflow: simulated ground truth vs measured mean gas velocity over "
@@ -542,26 +443,6 @@ class Appliance:
                 f"{comparison['magnitude_error_pct']:.1f} %, direction error "
                 f"{comparison['direction_error_deg']:.1f} deg\n")
         return code
-
-    def truth_comparison(self) -> dict[str, Any] | None:
-        """Mean measured vs mean true gas velocity over the valid frames of a simulated run.
-
-        Only frames with a valid summary and a ground truth (not wrapping the scene loop)
-        count; None when there is none.
-        """
-        pairs = [(np.asarray(s["mean_velocity_m_s"], dtype=np.float64), truth)
-                 for _t, truth, s in self.truth_log
-                 if truth is not None and s["valid"] and s["mean_velocity_m_s"] is not None]
-        if not pairs:
-            return None
-        measured = np.mean([m for m, _ in pairs], axis=0)
-        truth = np.mean([t for _, t in pairs], axis=0)
-        nt, nm = float(np.linalg.norm(truth)), float(np.linalg.norm(measured))
-        cos = float(np.clip(measured @ truth / (nm * nt), -1, 1)) if nm > 0 and nt > 0 else 1.0
-        return {"frames": len(pairs), "truth_m_s": truth.tolist(),
-                "measured_m_s": measured.tolist(),
-                "magnitude_error_pct": 100.0 * abs(nm - nt) / nt if nt > 0 else float("nan"),
-                "direction_error_deg": float(np.degrees(np.arccos(cos)))}
 
     def _spawn(self, target: Any, name: str, *args: Any) -> None:
         t = threading.Thread(target=target, name=name, args=args, daemon=True)
@@ -628,6 +509,21 @@ class Appliance:
         sensor = np.asarray(a.options.get("mean_wind", SIMULATED_MEAN_WIND), dtype=np.float64)
         v = self._mounting.rotation @ sensor
         return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def processing_metadata(geometry: StereoGeometry, params: ChainParameters
+                        ) -> dict[str, dict[str, str]]:
+    """MCAP metadata records that let ``ogiflow replay`` reprocess a file as it was run:
+    the geometry of Eq. 4 (``geometry``) and the chain parameters (``processing``)."""
+    import dataclasses
+    import json
+
+    geo = {"camera_constant": geometry.camera_constant,
+           "principal_point": list(geometry.principal_point), "baseline": geometry.baseline,
+           "image_size": list(geometry.image_size),
+           "rectified": geometry.maps_left is None and geometry.maps_right is None}
+    return {"geometry": {"json": json.dumps(geo)},
+            "processing": {"json": json.dumps(dataclasses.asdict(params), default=str)}}
 
 
 def _fmt(v: Any) -> str:
