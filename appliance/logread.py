@@ -69,3 +69,29 @@ def iter_json(
             yield topic, json.loads(data)
 
     return reader, gen()
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """Metadata records of an appliance log (written at the start of every file).
+
+    Reads records until the first data chunk, so it is cheap on large files and works on
+    files cut by a crash.
+    """
+    from mcap.records import Chunk, DataEnd, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    out: dict[str, dict[str, str]] = {}
+    try:
+        with open(path, "rb") as f:
+            for record in StreamReader(f, skip_magic=False).records:
+                if isinstance(record, Metadata):
+                    out[record.name] = dict(record.metadata)
+                elif isinstance(record, (Chunk, Message, DataEnd)):
+                    break
+    except OSError as exc:
+        raise ValueError(f"cannot open {path}: {exc.strerror}") from None
+    except InvalidMagic:
+        raise ValueError(f"{path}: not an MCAP file") from None
+    except (McapError, struct.error, EOFError):
+        pass
+    return out
