@@ -250,12 +250,17 @@ def iter_triples(frames: BenchFrames) -> Iterator[tuple[list[np.ndarray], list[n
 
 @dataclass(frozen=True)
 class StageTimes:
-    """Medians over ``runs`` chain calls (ms) and the Farneback reference."""
+    """Medians over ``runs`` chain calls (ms) and the Farneback reference.
+
+    ``*_cpu_ms`` are process CPU times; the stage times are wall times (the chain's own
+    ``timings_ms``). ``ratio * farneback_cpu_ms`` estimates a stage's CPU time.
+    """
 
     stages_ms: dict[str, float]
     chain_ms: float
     chain_cpu_ms: float
     farneback_ms: float
+    farneback_cpu_ms: float
     runs: int
 
     def ratios(self) -> dict[str, float]:
@@ -290,17 +295,19 @@ def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> S
     assert result is not None
     d0, d1 = result.diff_left
 
-    fb = []
+    fb, fb_cpu = [], []
     for i in range(warmup + runs):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         farneback_flow(d0, d1)
         if i >= warmup:
             fb.append((time.perf_counter() - t0) * 1e3)
+            fb_cpu.append((time.process_time() - c0) * 1e3)
     return StageTimes(
         stages_ms={s: statistics.median(v) for s, v in per_stage.items()},
         chain_ms=statistics.median(total),
         chain_cpu_ms=statistics.median(cpu),
         farneback_ms=statistics.median(fb),
+        farneback_cpu_ms=statistics.median(fb_cpu),
         runs=runs,
     )
 
