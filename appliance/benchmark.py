@@ -253,10 +253,12 @@ class StageTimes:
     """Medians over ``runs`` chain calls (ms) and the Farneback reference.
 
     ``*_cpu_ms`` are process CPU times; the stage times are wall times (the chain's own
-    ``timings_ms``). ``ratio * farneback_cpu_ms`` estimates a stage's CPU time.
+    ``timings_ms``). ``stages_cpu_est_ms`` estimates each stage's CPU time: its wall time in
+    a call scaled by that call's CPU / wall ratio (assumes the load was even over the call).
     """
 
     stages_ms: dict[str, float]
+    stages_cpu_est_ms: dict[str, float]
     chain_ms: float
     chain_cpu_ms: float
     farneback_ms: float
@@ -284,14 +286,17 @@ def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> S
     for _ in range(warmup):
         result = compute_scene_flow(*next(triples), geo, params, state)
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
+    per_stage_cpu: dict[str, list[float]] = {s: [] for s in STAGES}
     total, cpu = [], []
     for _ in range(runs):
         c0 = time.process_time()
         result = compute_scene_flow(*next(triples), geo, params, state)
         cpu.append((time.process_time() - c0) * 1e3)
+        total.append(result.timings_ms["total"])
+        cpu_share = cpu[-1] / total[-1]
         for s in STAGES:
             per_stage[s].append(result.timings_ms[s])
-        total.append(result.timings_ms["total"])
+            per_stage_cpu[s].append(result.timings_ms[s] * cpu_share)
     assert result is not None
     d0, d1 = result.diff_left
 
@@ -304,6 +309,7 @@ def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> S
             fb_cpu.append((time.process_time() - c0) * 1e3)
     return StageTimes(
         stages_ms={s: statistics.median(v) for s, v in per_stage.items()},
+        stages_cpu_est_ms={s: statistics.median(v) for s, v in per_stage_cpu.items()},
         chain_ms=statistics.median(total),
         chain_cpu_ms=statistics.median(cpu),
         farneback_ms=statistics.median(fb),
