@@ -337,6 +337,11 @@ class Throughput:
         """Process CPU time per triple, summed over the workers."""
         return 1e3 * self.cpu_s / self.triples
 
+    @property
+    def pairs_per_cpu_s(self) -> float:
+        """Triples per second of CPU time: the pairs/s of one worker on an idle core."""
+        return self.triples / self.cpu_s
+
 
 def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int,
             barrier: Any, results: Any) -> None:

@@ -96,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
           f"wall, {st.farneback_cpu_ms:.2f} ms CPU")
     for t in through:
         print(f"{t.workers} worker(s): {t.pairs_per_s:.2f} pairs/s "
-              f"({t.triples} triples in {t.wall_s:.1f} s; {t.cpu_ms_per_pair:.1f} ms CPU each)")
+              f"({t.triples} triples in {t.wall_s:.1f} s; {t.cpu_ms_per_pair:.1f} ms CPU each, "
+              f"{t.pairs_per_cpu_s:.2f} pairs per CPU-second)")
     if load_start is not None and load_end is not None:
         print(f"load average (1/5/15 min): start {_fmt_load(load_start)}, "
               f"end {_fmt_load(load_end)} on {_cpu_count()} CPUs")
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
             "chain_cpu_ms": st.chain_cpu_ms,
             "stages_cpu_est_ms": st.stages_cpu_est_ms,
             "cpu_ms_per_pair": {str(t.workers): t.cpu_ms_per_pair for t in through},
+            "pairs_per_cpu_s": {str(t.workers): t.pairs_per_cpu_s for t in through},
             "farneback_ms": st.farneback_ms,
             "farneback_cpu_ms": st.farneback_cpu_ms,
             "ratio_to_farneback": ratios,
