@@ -29,6 +29,7 @@ import hashlib
 import json
 import os
 import statistics
+import sys
 import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
@@ -201,7 +202,8 @@ def load_frames(source: str = "field", n_frames: int = 16, seed: int = 7,
 
     The cache file name holds a hash of the source, the frame count, the seed and (for
     ``field``) the whole sequence configuration, so a changed preset is regenerated.
-    A corrupt cache file is regenerated and overwritten.
+    A corrupt cache file is regenerated and overwritten; an unwritable cache directory only
+    costs the cache (a warning on stderr).
     """
     if source not in SOURCES:
         raise ValueError(f"unknown bench source {source!r}; choose from {', '.join(SOURCES)}")
@@ -217,10 +219,14 @@ def load_frames(source: str = "field", n_frames: int = 16, seed: int = 7,
         except (OSError, ValueError, KeyError):
             pass  # corrupt or from an older layout: regenerate below
     frames = field_frames(n_frames, seed) if source == "field" else blob_frames(n_frames, seed)
-    cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
-    np.savez(tmp, left=frames.left, right=frames.right, times_s=frames.times_s)
-    os.replace(tmp, path)
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        np.savez(tmp, left=frames.left, right=frames.right, times_s=frames.times_s)
+        os.replace(tmp, path)
+    except OSError as exc:  # a read-only home (e.g. under systemd) only costs the cache
+        tmp.unlink(missing_ok=True)
+        print(f"ogiflow bench: input not cached ({exc})", file=sys.stderr)
     return frames
 
 

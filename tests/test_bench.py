@@ -79,3 +79,12 @@ def test_field_preset_matches_bench_geometry() -> None:
     assert (cam.cx, cam.cy) == geo.principal_point
     assert cfg.frame_interval_s == pytest.approx(1 / bm.FRAME_RATE_HZ)
     assert cfg.options.noise_netd_k > 0  # realistic: NETD-like noise on
+
+
+def test_unwritable_cache_dir_still_gives_frames(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    frames = bm.load_frames("blob", n_frames=4, cache_dir=blocker / "cache")
+    assert frames.left.shape == (4, 240, 320)
+    assert "not cached" in capsys.readouterr().err
