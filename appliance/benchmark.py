@@ -25,6 +25,7 @@ simulation; used by the tests and when the renderer is not wanted).
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -225,7 +226,8 @@ def load_frames(source: str = "field", n_frames: int = 16, seed: int = 7,
         np.savez(tmp, left=frames.left, right=frames.right, times_s=frames.times_s)
         os.replace(tmp, path)
     except OSError as exc:  # a read-only home (e.g. under systemd) only costs the cache
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
         print(f"ogiflow bench: input not cached ({exc})", file=sys.stderr)
     return frames
 
