@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.wind_decode",
     "appliance.commands.run",
     "appliance.commands.export",
+    "appliance.commands.bench",
 )
 
 EXIT_OK = 0

@@ -1,0 +1,90 @@
+"""``ogiflow bench``: JSON shape and sanity of the values (no timing assertions)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from appliance import benchmark as bm
+from appliance import cli
+
+
+def _positive_finite(x: object) -> bool:
+    return isinstance(x, float) and math.isfinite(x) and x > 0
+
+
+def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "bench.json"
+    args = ["bench", "--source", "blob", "--frames", "6", "--runs", "2", "--warmup", "1",
+            "--seconds", "1", "--workers-max", "2", "--cache-dir", str(tmp_path / "cache"),
+            "--json", str(out)]
+    assert cli.main(args) == cli.EXIT_OK
+    res = json.loads(out.read_text())
+    assert set(res["stages_ms"]) == set(bm.STAGES)
+    assert all(_positive_finite(v) for v in res["stages_ms"].values())
+    assert _positive_finite(res["chain_ms"])
+    # the chain's total includes every stage
+    assert res["chain_ms"] >= 0.99 * sum(res["stages_ms"].values())
+    assert set(res["pairs_per_s"]) == {"1", "2"}
+    assert all(_positive_finite(v) for v in res["pairs_per_s"].values())
+    assert _positive_finite(res["farneback_ms"]) and _positive_finite(res["chain_cpu_ms"])
+    assert set(res["ratio_to_farneback"]) == {*bm.STAGES, "chain"}
+    text = capsys.readouterr().out
+    assert "disparity" in text and "pairs/s" in text and "load average" in text
+    # the generated input was cached under --cache-dir
+    assert len(list((tmp_path / "cache").glob("blob-*.npz"))) == 1
+
+
+def test_cache_roundtrip_and_corrupt_file(tmp_path: Path) -> None:
+    a = bm.load_frames("blob", n_frames=5, seed=3, cache_dir=tmp_path)
+    (path,) = tmp_path.glob("blob-*.npz")
+    b = bm.load_frames("blob", n_frames=5, seed=3, cache_dir=tmp_path)
+    np.testing.assert_array_equal(a.left, b.left)
+    np.testing.assert_array_equal(a.right, b.right)
+    assert a.left.dtype == np.uint16 and a.left.shape == (5, 240, 320)
+    path.write_bytes(b"garbage")
+    c = bm.load_frames("blob", n_frames=5, seed=3, cache_dir=tmp_path)
+    np.testing.assert_array_equal(a.left, c.left)
+    other = bm.load_frames("blob", n_frames=5, seed=4, cache_dir=tmp_path)
+    assert not np.array_equal(a.left, other.left)
+
+
+def test_triples_consecutive_with_gap_at_wrap() -> None:
+    frames = bm.blob_frames(n_frames=4)
+    it = bm.iter_triples(frames)
+    t = [next(it)[2] for _ in range(4)]
+    assert t[1][:2] == t[0][1:]  # consecutive: warm start
+    assert t[2][0] > t[1][2] and t[2][:2] != t[1][1:]  # wrap: a gap, cold start
+    assert all(a < b < c for a, b, c in t)
+
+
+@pytest.mark.parametrize("change", [
+    ["--seconds", "0"], ["--runs", "0"], ["--workers-max", "0"], ["--frames", "3"],
+    ["--warmup", "0"], ["--seconds", "nan"],
+])
+def test_bad_options_exit_2(change: list[str], tmp_path: Path) -> None:
+    assert cli.main(["bench", "--cache-dir", str(tmp_path), *change]) == cli.EXIT_USAGE
+
+
+def test_field_preset_matches_bench_geometry() -> None:
+    cfg = bm._field_config(n_frames=4, seed=7)
+    cam = cfg.effective_camera()
+    geo = bm.geometry()
+    assert (cam.width, cam.height) == geo.image_size
+    assert cam.s_px == geo.camera_constant and cam.b_m == geo.baseline
+    assert (cam.cx, cam.cy) == geo.principal_point
+    assert cfg.frame_interval_s == pytest.approx(1 / bm.FRAME_RATE_HZ)
+    assert cfg.options.noise_netd_k > 0  # realistic: NETD-like noise on
+
+
+def test_unwritable_cache_dir_still_gives_frames(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    frames = bm.load_frames("blob", n_frames=4, cache_dir=blocker / "cache")
+    assert frames.left.shape == (4, 240, 320)
+    assert "not cached" in capsys.readouterr().err
