@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.eval_footage",
     "appliance.commands.simulate",
     "appliance.commands.eval_stereo",
+    "appliance.commands.eval_sceneflow",
 )
 
 EXIT_OK = 0
