@@ -272,7 +272,7 @@ def evaluate_sequence(directory: Path, params: Any, max_disparity: int,
         if log is not None:
             p = per_method["proposed"][-1]
             rm = "n/a" if p["rmve"] is None else f"{p['rmve']:.1f} %"
-            log(f"  {meta['name']} triple {i + 1}/{triples}: proposed RMVE {rm} "
+            log(f"  {Path(directory).name} triple {i + 1}/{triples}: proposed RMVE {rm} "
                 f"({time.perf_counter() - start:.0f} s)")
     summary: dict[str, Any] = {m: aggregate(per_method[m]) for m in METHODS}
     ref_speeds = [float(np.linalg.norm(f["reference_mean_velocity"]))
