@@ -159,9 +159,16 @@ def frame_metrics(velocity: Any, valid: Any, gas_mask: Any, u_sf: Any, u_sf_vali
     v_ref = sm.mean_velocity(ref_clean, reference_mask)
     both = region & reference_mask
     aee = sm.aee_3d(ref_clean, velocity, both)
+    # Eq. 10 averages V and V* over different regions (segmented vs reference), so RMVE
+    # mixes velocity error with segmentation mismatch; the same two metrics over the
+    # common pixels isolate the velocity error (not in the paper; for the analysis).
+    v_avg_c = sm.mean_velocity(velocity, both)
+    v_ref_c = sm.mean_velocity(ref_clean, both)
     return {
         "rmve": sm.rmve(v_ref, v_avg),
         "aemv": sm.aemv(v_ref, v_avg),
+        "rmve_common": sm.rmve(v_ref_c, v_avg_c),
+        "aemv_common": sm.aemv(v_ref_c, v_avg_c),
         "aee_3d_mm_s": None if aee is None else 1e3 * aee,
         "aae_3d_deg": sm.aae_3d(ref_clean, velocity, both),
         "c_usf": c_usf(u_sf, gas_mask, valid & u_sf_valid),
@@ -192,10 +199,11 @@ def aggregate(frames: list[dict[str, Any]]) -> dict[str, Any]:
     """
     out: dict[str, Any] = {"n_frames": len(frames)}
     undefined: dict[str, int] = {}
-    for key in ("rmve", "aemv", "aee_3d_mm_s", "aae_3d_deg", "c_usf", "sa", "sa_overlap"):
+    for key in ("rmve", "aemv", "rmve_common", "aemv_common", "aee_3d_mm_s", "aae_3d_deg",
+                "c_usf", "sa", "sa_overlap"):
         mean, std, n_undef = _mean_std([f[key] for f in frames])
         out[key] = mean
-        if key in ("rmve", "aemv"):
+        if key in ("rmve", "aemv", "rmve_common", "aemv_common"):
             out[key + "_std"] = std
         if n_undef:
             undefined[key] = n_undef
