@@ -116,3 +116,32 @@ def test_paper_table_covers_the_three_table2_presets() -> None:
     assert set(eval_sceneflow.PAPER_TABLE3) == {"table2_1", "table2_2", "table2_3"}
     for row in eval_sceneflow.PAPER_TABLE3.values():
         assert set(row) == set(METHODS)
+
+
+def test_frame_metrics_of_a_perfect_field_and_aggregate_flags() -> None:
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    ref = rng.normal(size=(12, 16, 3)).astype(np.float32)
+    ref[..., 1] -= 3.0
+    mask = np.zeros((12, 16), bool)
+    mask[2:10, 3:13] = True
+    ref_nan = np.where(mask[..., None], ref, np.nan).astype(np.float32)
+    ones = np.ones((12, 16), bool)
+    u_sf = np.zeros((12, 16), np.float32)
+    fm = eval_sceneflow.frame_metrics(np.where(mask[..., None], ref, 0.0).astype(np.float32),
+                                      ones, mask, u_sf, ones, ref_nan, mask)
+    assert fm["rmve"] == pytest.approx(0.0, abs=1e-6)
+    assert fm["aemv"] == pytest.approx(0.0, abs=1e-3)
+    assert fm["aee_3d_mm_s"] == pytest.approx(0.0, abs=1e-6)
+    assert fm["aae_3d_deg"] == pytest.approx(0.0, abs=0.1)
+    assert fm["c_usf"] == pytest.approx(1.0) and fm["sa"] == pytest.approx(100.0)
+    assert fm["r_sf"] == pytest.approx([1.0, 1.0, 1.0])
+    # An empty segmentation: every method metric undefined, flagged, none NaN.
+    empty = eval_sceneflow.frame_metrics(ref, ones, np.zeros((12, 16), bool), u_sf, ones,
+                                         ref_nan, mask)
+    assert empty["rmve"] is None and empty["aee_3d_mm_s"] is None and empty["sa"] == 0.0
+    agg = eval_sceneflow.aggregate([fm, empty])
+    assert agg["rmve"] == pytest.approx(0.0, abs=1e-6) and agg["rmve_std"] == 0.0
+    assert agg["undefined"]["rmve"] == 1 and agg["undefined"]["r_sf_X"] == 1
+    assert agg["sa"] == pytest.approx(50.0)
