@@ -44,7 +44,7 @@ def test_end_to_end_json_table_and_figures(tiny_data: Path, tmp_path: Path,
     out = tmp_path / "t3.json"
     figs = tmp_path / "figs"
     rc = cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--json", str(out),
-                   "--figures", str(figs), "--d0", "20", "--max-disparity", "64"])
+                   "--figures", str(figs), "--d0", "20", "--sgm-range", "64"])
     assert rc == cli.EXIT_OK
     res = json.loads(out.read_text())
     assert set(res) == {"tiny"}
@@ -77,7 +77,7 @@ def test_end_to_end_json_table_and_figures(tiny_data: Path, tmp_path: Path,
 def test_single_sequence_directory_and_frame_limit(tiny_data: Path, tmp_path: Path) -> None:
     out = tmp_path / "one.json"
     rc = cli.main(["eval", "sceneflow", "--data", str(tiny_data / "tiny"), "--json", str(out),
-                   "--d0", "20", "--max-disparity", "64", "--frames", "1"])
+                   "--d0", "20", "--sgm-range", "64", "--frames", "1"])
     assert rc == cli.EXIT_OK
     assert json.loads(out.read_text())["tiny"]["proposed"]["n_frames"] == 1
 
@@ -95,7 +95,7 @@ def test_missing_data_names_the_simulate_command(tmp_path: Path,
 
 
 def test_bad_options_exit_2(tiny_data: Path) -> None:
-    for extra in (["--max-disparity", "50"], ["--d0", "-1"], ["--frames", "0"]):
+    for extra in (["--sgm-range", "50"], ["--d0", "-1"], ["--frames", "0"]):
         assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), *extra]) == \
             cli.EXIT_USAGE
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -99,11 +100,12 @@ def register(root: argparse._SubParsersAction) -> None:
                         "i.e. V_Z errors of ~2 m/s at 1 ms frames; see README)")
     p.add_argument("--d0", type=float, default=60.0,
                    help="minimum disparity in px for the farthest expected gas, s*b/Z_max "
-                        "(default 60 = 780 px * 0.2 m / 2.6 m); fills SGM holes")
-    p.add_argument("--max-disparity", type=int, default=128,
-                   help="SGM search range [0, N) in px, multiple of 16, for the chain's "
-                        "initialisation and the baselines (default 128: gas beyond "
-                        "s*b/128 = 1.2 m)")
+                        "(default 60 = 780 px * 0.2 m / 2.6 m): start of the SGM search "
+                        "range, fill value of its holes")
+    p.add_argument("--sgm-range", type=int, default=64,
+                   help="width N of the SGM search range [d0, d0 + N) in px, multiple of 16, "
+                        "for the chain's initialisation and the baselines (default 64: gas "
+                        "between s*b/(d0 + 64) = 1.26 m and 2.6 m)")
     p.add_argument("--frames", type=int, metavar="N",
                    help="evaluate only the first N triples of each sequence")
     p.set_defaults(func=run)
@@ -112,7 +114,7 @@ def register(root: argparse._SubParsersAction) -> None:
 # ---------------------------------------------------------------------------- evaluation
 
 
-def chain_parameters(disparity_init: str, d0: float, max_disparity: int) -> Any:
+def chain_parameters(disparity_init: str, d0: float, sgm_range: int) -> Any:
     """The chain's parameters for synthetic data under the paper's ideal conditions."""
     from processing.chain import ChainParameters
 
@@ -122,7 +124,7 @@ def chain_parameters(disparity_init: str, d0: float, max_disparity: int) -> Any:
     # cancel; the chain also refuses shifts above max_jitter_px, but shifts below that
     # would still be wrong. The paper's Sec. 5.1 conditions have no jitter to remove.
     return ChainParameters(register=False, disparity_init=disparity_init, d0=d0,
-                           sgm_num_disparities=max_disparity)
+                           sgm_num_disparities=sgm_range)
 
 
 def _geometry(meta: dict[str, Any]) -> Any:
@@ -219,7 +221,7 @@ def aggregate(frames: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _baseline_velocity(kind: str, res: Any, geometry: Any, max_disparity: int) -> Any:
+def _baseline_velocity(kind: str, res: Any, geometry: Any, params: Any) -> Any:
     from processing.baselines import sgm_brox, sgm_farneback
     from processing.quality import scene_flow_energy
     from processing.velocity import scene_flow_velocity
@@ -227,7 +229,9 @@ def _baseline_velocity(kind: str, res: Any, geometry: Any, max_disparity: int) -
     il0, il1 = res.diff_left
     ir0, ir1 = res.diff_right
     fn = sgm_brox if kind == "sgm_brox" else sgm_farneback
-    b = fn(il0, ir0, il1, ir1, num_disparities=max_disparity)
+    # The same search range as the chain's SGM initialisation: [d0, d0 + N).
+    b = fn(il0, ir0, il1, ir1, min_disparity=math.floor(params.d0),
+           num_disparities=params.sgm_num_disparities)
     vel, valid = scene_flow_velocity(b.flow, b.d, b.d_change,
                                      principal_point=geometry.principal_point,
                                      camera_constant=geometry.camera_constant,
@@ -237,8 +241,7 @@ def _baseline_velocity(kind: str, res: Any, geometry: Any, max_disparity: int) -
     return vel, valid, u_sf, u_ok
 
 
-def evaluate_sequence(directory: Path, params: Any, max_disparity: int,
-                      max_triples: int | None = None,
+def evaluate_sequence(directory: Path, params: Any, max_triples: int | None = None,
                       log: Any = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Run the three methods on every triple of one sequence.
 
@@ -272,7 +275,7 @@ def evaluate_sequence(directory: Path, params: Any, max_disparity: int,
         ref, ref_mask = triplet_reference(f0, f1)
         fields = {"proposed": (res.velocity, res.valid, res.u_sf, res.u_sf_valid)}
         for kind in METHODS[1:]:
-            fields[kind] = _baseline_velocity(kind, res, geometry, max_disparity)
+            fields[kind] = _baseline_velocity(kind, res, geometry, params)
         for m in METHODS:
             vel, valid, u_sf, u_ok = fields[m]
             per_method[m].append(frame_metrics(vel, valid, res.gas_mask, u_sf, u_ok,
@@ -520,15 +523,14 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate every sequence in --data; print the table, write JSON and figures."""
     from processing.synthetic.storage import SequenceFormatError
 
-    if args.max_disparity < 16 or args.max_disparity % 16:
-        raise ValueError(f"--max-disparity must be a positive multiple of 16, "
-                         f"got {args.max_disparity}")
+    if args.sgm_range < 16 or args.sgm_range % 16:
+        raise ValueError(f"--sgm-range must be a positive multiple of 16, got {args.sgm_range}")
     if not args.d0 >= 0:
         raise ValueError(f"--d0 must be >= 0 px, got {args.d0}")
     if args.frames is not None and args.frames < 1:
         raise ValueError(f"--frames must be >= 1, got {args.frames}")
     seqs = _sequences(args.data)
-    params = chain_parameters(args.disparity_init, args.d0, args.max_disparity)
+    params = chain_parameters(args.disparity_init, args.d0, args.sgm_range)
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
@@ -537,15 +539,15 @@ def run(args: argparse.Namespace) -> int:
     for seq in seqs:
         log(f"evaluating {seq.name} ...")
         try:
-            summary, fig = evaluate_sequence(seq, params, args.max_disparity,
-                                             max_triples=args.frames, log=log)
+            summary, fig = evaluate_sequence(seq, params, max_triples=args.frames, log=log)
         except SequenceFormatError as exc:
             raise cli.CommandError(f"cannot read sequence {seq}: {exc}") from exc
         results[seq.name] = summary
         if args.figures is not None:
             for path in write_figures(args.figures, seq.name, summary, fig):
                 log(f"  wrote {path}")
-    init = (f"SGM over [0, {args.max_disparity}) px, holes {args.d0:g} px"
+    lo = math.floor(args.d0)
+    init = (f"SGM over [{lo}, {lo + args.sgm_range}) px, holes {args.d0:g} px"
             if args.disparity_init == "sgm" else f"d0 = {args.d0:g} px")
     print(f"Scene flow on synthetic data (paper Table 3); disparity init: {init}; "
           f"means over triples")
