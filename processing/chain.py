@@ -116,11 +116,12 @@ class ChainParameters:
         Length weight of the segmentation (Eq. 9; 0.5).
     d0 : float
         Minimum disparity in px (Sec. 4.3): the initial disparity for ``disparity_init =
-        "d0"`` and the fill value of SGM holes for ``"sgm"``.
+        "d0"``; for ``"sgm"`` the lower end of the SGM search range and the fill value of
+        its holes.
     disparity_init : str
         "sgm" (StereoSGBM on the differential images, holes filled with d0) or "d0".
     sgm_num_disparities : int
-        Disparity search range of the SGM initialisation (multiple of 16).
+        Width of the SGM search range [floor(d0), floor(d0) + N) in px (multiple of 16).
     denoise_lambda : float
         Sobolev prior weight in px^2 (0 disables).
     register : bool
@@ -375,7 +376,10 @@ def compute_scene_flow(
 
     init_d = None
     if params.disparity_init == "sgm":
+        # The search starts at d0: a range below the gas's disparity leaves SGM nothing to
+        # find, and the joint solver, started far off, does not converge (d' bias).
         init_d = sgbm_initial_disparity(pl.diff0, pr.diff0,
+                                        min_disparity=int(np.floor(params.d0)),
                                         num_disparities=params.sgm_num_disparities,
                                         fallback=params.d0)
     t = lap("disparity_init", t)

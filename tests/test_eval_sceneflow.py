@@ -1,0 +1,147 @@
+"""``ogiflow eval sceneflow`` end to end on a tiny generated sequence, and its error paths."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import pytest
+
+from appliance import cli
+from appliance.commands import eval_sceneflow
+from processing.synthetic import write_sequence
+from processing.synthetic.render import StereoCamera
+from processing.synthetic.sequences import generate_sequence, preset_table2_1
+
+METHODS = ("proposed", "sgm_brox", "sgm_farneback")
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One 4-frame sequence: Table-2 preset 1 on a 24^3 grid, 128 x 96 px (s scaled by 0.4).
+
+    The gas is ~2 m away, so d ~ 312 * 0.2 / 2 = 31 px: SGM range 64, d0 = 20 px.
+    """
+    root = tmp_path_factory.mktemp("synthetic")
+    cfg = preset_table2_1()
+    n = 24
+    fluid = replace(cfg.fluid, shape=(n, n, n), voxel_m=cfg.fluid.voxel_m * 100 / n)
+    cfg = replace(cfg, fluid=fluid, n_frames=4, spinup_steps=10,
+                  camera=StereoCamera(width=128, height=96, s_px=312.0))
+    write_sequence(root / "tiny", cfg.meta(), generate_sequence(cfg))
+    return root
+
+
+def _finite_or_none(v: object) -> bool:
+    return v is None or (isinstance(v, float) and math.isfinite(v))
+
+
+def test_end_to_end_json_table_and_figures(tiny_data: Path, tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "t3.json"
+    figs = tmp_path / "figs"
+    rc = cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--json", str(out),
+                   "--figures", str(figs), "--d0", "20", "--sgm-range", "64"])
+    assert rc == cli.EXIT_OK
+    res = json.loads(out.read_text())
+    assert set(res) == {"tiny"}
+    seq = res["tiny"]
+    assert seq["reference"]["triples"] == 2
+    assert seq["reference"]["mean_speed_m_s"] > 0.5
+    for m in METHODS:
+        r = seq[m]
+        assert r["n_frames"] == 2 and len(r["frames"]) == 2
+        for key in ("rmve", "rmve_std", "aemv", "aemv_std", "aee_3d_mm_s", "aae_3d_deg",
+                    "c_usf", "sa"):
+            assert _finite_or_none(r[key]), (m, key, r[key])
+        assert len(r["r_sf"]) == 3 and all(_finite_or_none(x) for x in r["r_sf"])
+        # Every per-frame value is a number or a flagged None, never NaN.
+        assert "NaN" not in out.read_text()
+        assert r["rmve"] >= 0 and 0 <= r["aemv"] <= 180 and 0 <= r["aae_3d_deg"] <= 90
+        assert 0 < r["c_usf"] <= 1 and r["sa"] > 0
+    # The same segmentation scores all three methods.
+    assert seq["proposed"]["sa"] == seq["sgm_brox"]["sa"] == seq["sgm_farneback"]["sa"]
+    # The chain recovers the mean gas velocity of even this coarse scene (measured ~7 %,
+    # AEMV ~6 deg); the bounds catch a broken chain or a sign error, not small drifts.
+    assert seq["proposed"]["rmve"] < 30 and seq["proposed"]["aemv"] < 30
+    text = capsys.readouterr().out
+    assert "RMVE" in text and "tiny" in text and "ours" in text
+    for name in ("tiny_mean_velocity.png", "tiny_fields.png"):
+        img = cv2.imread(str(figs / name))
+        assert img is not None and img.shape[0] > 100 and img.shape[1] > 300
+
+
+def test_single_sequence_directory_and_frame_limit(tiny_data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "one.json"
+    rc = cli.main(["eval", "sceneflow", "--data", str(tiny_data / "tiny"), "--json", str(out),
+                   "--d0", "20", "--sgm-range", "64", "--frames", "1"])
+    assert rc == cli.EXIT_OK
+    assert json.loads(out.read_text())["tiny"]["proposed"]["n_frames"] == 1
+
+
+def test_missing_data_names_the_simulate_command(tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / "nothing_here"
+    assert cli.main(["eval", "sceneflow", "--data", str(missing)]) == cli.EXIT_USAGE
+    err = capsys.readouterr().err
+    assert f"ogiflow simulate --out {missing}" in err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert cli.main(["eval", "sceneflow", "--data", str(empty)]) == cli.EXIT_USAGE
+    assert f"ogiflow simulate --out {empty}" in capsys.readouterr().err
+
+
+def test_bad_options_exit_2(tiny_data: Path) -> None:
+    for extra in (["--sgm-range", "50"], ["--d0", "-1"], ["--frames", "0"]):
+        assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), *extra]) == \
+            cli.EXIT_USAGE
+
+
+def test_corrupt_frame_is_a_clear_failure(tiny_data: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    import shutil
+
+    copy = tmp_path / "data" / "tiny"
+    shutil.copytree(tiny_data / "tiny", copy)
+    (copy / "frame_00002.npz").write_bytes(b"truncated")
+    rc = cli.main(["eval", "sceneflow", "--data", str(copy.parent)])
+    assert rc == cli.EXIT_FAILURE
+    assert "frame_00002.npz" in capsys.readouterr().err
+
+
+def test_paper_table_covers_the_three_table2_presets() -> None:
+    assert set(eval_sceneflow.PAPER_TABLE3) == {"table2_1", "table2_2", "table2_3"}
+    for row in eval_sceneflow.PAPER_TABLE3.values():
+        assert set(row) == set(METHODS)
+
+
+def test_frame_metrics_of_a_perfect_field_and_aggregate_flags() -> None:
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    ref = rng.normal(size=(12, 16, 3)).astype(np.float32)
+    ref[..., 1] -= 3.0
+    mask = np.zeros((12, 16), bool)
+    mask[2:10, 3:13] = True
+    ref_nan = np.where(mask[..., None], ref, np.nan).astype(np.float32)
+    ones = np.ones((12, 16), bool)
+    u_sf = np.zeros((12, 16), np.float32)
+    fm = eval_sceneflow.frame_metrics(np.where(mask[..., None], ref, 0.0).astype(np.float32),
+                                      ones, mask, u_sf, ones, ref_nan, mask)
+    assert fm["rmve"] == pytest.approx(0.0, abs=1e-6)
+    assert fm["aemv"] == pytest.approx(0.0, abs=1e-3)
+    assert fm["aee_3d_mm_s"] == pytest.approx(0.0, abs=1e-6)
+    assert fm["aae_3d_deg"] == pytest.approx(0.0, abs=0.1)
+    assert fm["c_usf"] == pytest.approx(1.0) and fm["sa"] == pytest.approx(100.0)
+    assert fm["r_sf"] == pytest.approx([1.0, 1.0, 1.0])
+    # An empty segmentation: every method metric undefined, flagged, none NaN.
+    empty = eval_sceneflow.frame_metrics(ref, ones, np.zeros((12, 16), bool), u_sf, ones,
+                                         ref_nan, mask)
+    assert empty["rmve"] is None and empty["aee_3d_mm_s"] is None and empty["sa"] == 0.0
+    agg = eval_sceneflow.aggregate([fm, empty])
+    assert agg["rmve"] == pytest.approx(0.0, abs=1e-6) and agg["rmve_std"] == 0.0
+    assert agg["undefined"]["rmve"] == 1 and agg["undefined"]["r_sf_X"] == 1
+    assert agg["sa"] == pytest.approx(50.0)
