@@ -31,6 +31,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.run",
     "appliance.commands.export",
     "appliance.commands.bench",
+    "appliance.commands.eval_sceneflow",
+    "appliance.commands.replay",
 )
 
 EXIT_OK = 0
