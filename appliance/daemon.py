@@ -306,7 +306,11 @@ class Appliance:
         self.watchdog = Watchdog(notifier, period, cfg.health.stall_s) if period else None
         self.unpaired = {s: 0 for s in SIDES}
 
-        reader = self._start_anemometer_and_history()
+        from drivers.anemometer.history import WindHistory
+        from drivers.anemometer.mounting import Mounting
+
+        self._mounting = Mounting.from_config(cfg.anemometer.protocol, cfg.anemometer.mounting)
+        self.history = WindHistory()
         wind_cam = self._mean_simulated_wind()
         scene = self._simulated_scene(wind_cam)
         self.geometry = self._geometry(scene)
@@ -320,76 +324,82 @@ class Appliance:
                             "d0": s_px * b_m / (2.0 * cfg.simulation.distance_m)}
         params = ChainParameters.from_mapping({**sim_defaults, **cfg.processing.parameters})
 
-        if cfg.recording.enabled:
-            from appliance.mcap_recovery import recover_unfinished
-            from appliance.recorder import Recorder, file_metadata
-
-            cfg.recording.dir.mkdir(parents=True, exist_ok=True)
-            for rep in recover_unfinished(cfg.recording.dir):
-                log.warning("recovered %s after a crash", rep)
-            cal_text = (Path(cfg.calibration).read_text() if cfg.calibration is not None
-                        else None)
-            metadata = file_metadata(cfg, cal_text)
-            metadata.update(processing_metadata(self.geometry, params))
-            self.recorder = Recorder(cfg.recording, metadata).start()
-        if cfg.live.mode != "off":
-            from appliance.live import LiveView
-
-            self.live = LiveView(cfg.live).start()
-            self.live_url = getattr(self.live, "url", None)
-
-        self.publisher = ResultPublisher(
-            self.recorder, self.live, self.wall_ns, cfg.recording.fields_every,
-            wind_at=self.history.at if self.history is not None else None,
-            truth_for=self._truth_for if self.truth is not None else None)
-
-        from appliance.ring import PairRing
-
-        w, h = self.geometry.image_size
-        self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
-        ctx = mp.get_context("spawn")
-        results = ctx.Queue(maxsize=64)
-        stop_workers = ctx.Event()
+        # Everything created from here on is released in the finally block, whatever fails.
+        reader = reporter = None
+        workers: list[Any] = []
+        stop_workers: Any = None
+        previous: dict[int, Any] = {}
         self._workers_done = threading.Event()
-        workers = []
-        if cfg.processing.enabled:
-            for i in range(cfg.processing.workers):
-                p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                                args=(i, self.ring.handle(), results, stop_workers,
-                                      self.geometry, params), daemon=True)
-                p.start()
-                workers.append(p)
-        else:
-            self._workers_done.set()
-
-        sinks = [log_sink()]
-        if self.recorder is not None:
-            sinks.append(mcap_sink(self.recorder))
-        if self.live is not None:
-            sinks.append(live_sink(self.live))
-        self.health.add_counters(self._health_counters)
-        if cfg.recording.enabled:
-            self.health.add_gauges(disk_free_source(cfg.recording.dir))
-        reporter = HealthReporter(self.health, cfg.health.interval_s, sinks, notifier,
-                                  self.watchdog).start()
-
-        self._spawn(self._pairing_loop, "pairing")
-        self._spawn(self._results_loop, "results", results)
-        for side in SIDES:
-            self._spawn(self._camera_loop, f"camera-{side}", side, scene)
-
-        previous = {sig: signal.signal(sig, self._on_signal)
-                    for sig in (signal.SIGTERM, signal.SIGINT)}
-        notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
-        if getattr(self, "_banner", False):
-            import sys
-
-            where = self.live_url or "off"
-            rec = str(cfg.recording.dir) if cfg.recording.enabled else "off"
-            sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
-                             f"(Ctrl-C or SIGTERM stops)\n")
-        t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
         try:
+            if cfg.recording.enabled:
+                from appliance.mcap_recovery import recover_unfinished
+                from appliance.recorder import Recorder, file_metadata
+
+                cfg.recording.dir.mkdir(parents=True, exist_ok=True)
+                for rep in recover_unfinished(cfg.recording.dir):
+                    log.warning("recovered %s after a crash", rep)
+                cal_text = (Path(cfg.calibration).read_text() if cfg.calibration is not None
+                            else None)
+                metadata = file_metadata(cfg, cal_text)
+                metadata.update(processing_metadata(self.geometry, params))
+                self.recorder = Recorder(cfg.recording, metadata).start()
+            if cfg.live.mode != "off":
+                from appliance.live import LiveView
+
+                self.live = LiveView(cfg.live).start()
+                self.live_url = getattr(self.live, "url", None)
+            self.publisher = ResultPublisher(
+                self.recorder, self.live, self.wall_ns, cfg.recording.fields_every,
+                wind_at=self.history.at,
+                truth_for=self._truth_for if self.truth is not None else None)
+
+            from appliance.ring import PairRing
+
+            w, h = self.geometry.image_size
+            self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
+            ctx = mp.get_context("spawn")
+            results = ctx.Queue(maxsize=64)
+            stop_workers = ctx.Event()
+            if cfg.processing.enabled:
+                for i in range(cfg.processing.workers):
+                    p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                                    args=(i, self.ring.handle(), results, stop_workers,
+                                          self.geometry, params), daemon=True)
+                    p.start()
+                    workers.append(p)
+            else:
+                self._workers_done.set()
+
+            sinks = [log_sink()]
+            if self.recorder is not None:
+                sinks.append(mcap_sink(self.recorder))
+            if self.live is not None:
+                sinks.append(live_sink(self.live))
+            self.health.add_counters(self._health_counters)
+            if cfg.recording.enabled:
+                self.health.add_gauges(disk_free_source(cfg.recording.dir))
+            reporter = HealthReporter(self.health, cfg.health.interval_s, sinks, notifier,
+                                      self.watchdog).start()
+
+            # The anemometer starts once the recorder and publisher exist: every sample it
+            # delivers is recorded.
+            reader = self._start_anemometer()
+            self._spawn(self._pairing_loop, "pairing")
+            self._spawn(self._results_loop, "results", results)
+            for side in SIDES:
+                self._spawn(self._camera_loop, f"camera-{side}", side, scene)
+
+            previous = {sig: signal.signal(sig, self._on_signal)
+                        for sig in (signal.SIGTERM, signal.SIGINT)}
+            notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
+            if getattr(self, "_banner", False):
+                import sys
+
+                where = self.live_url or "off"
+                rec = str(cfg.recording.dir) if cfg.recording.enabled else "off"
+                sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
+                                 f"(Ctrl-C or SIGTERM stops)\n")
+            t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
             while not self.stop_event.is_set():
                 timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
                 self.stop_event.wait(timeout)
@@ -403,7 +413,8 @@ class Appliance:
                     t.join(timeout=2.0)
             if reader is not None:
                 reader.stop(timeout=1.0)
-            stop_workers.set()
+            if stop_workers is not None:
+                stop_workers.set()
             for p in workers:
                 p.join(timeout=2.0)
                 if p.is_alive():
@@ -411,13 +422,15 @@ class Appliance:
             self._workers_done.set()
             for t in self._threads:
                 t.join(timeout=1.0)
-            reporter.stop()
+            if reporter is not None:
+                reporter.stop()
             if self.live is not None:
                 self.live.close()
             if self.recorder is not None:
                 self.recorder.close(timeout=5.0)
-            self.ring.close()
-            self.ring.unlink()
+            if self.ring is not None:
+                self.ring.close()
+                self.ring.unlink()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         return EXIT_OK
@@ -475,14 +488,11 @@ class Appliance:
 
     # ------------------------------------------------------------------ anemometer
 
-    def _start_anemometer_and_history(self) -> Any:
-        from drivers.anemometer.history import WindHistory
-        from drivers.anemometer.mounting import Mounting
+    def _start_anemometer(self) -> Any:
         from drivers.anemometer.reader import AnemometerReader
         from drivers.anemometer.registry import make_anemometer
 
         a = self.cfg.anemometer
-        self._mounting = Mounting.from_config(a.protocol, a.mounting)
         options = dict(a.options)
         if a.backend == "simulated":
             options.setdefault("mean_wind", SIMULATED_MEAN_WIND)
@@ -492,7 +502,6 @@ class Appliance:
             options.setdefault("baudrate", a.baud)
             options.setdefault("parity", a.parity)
         self._anemometer = make_anemometer(a.backend, **options)
-        self.history = WindHistory()
         return AnemometerReader(self._anemometer, on_sample=self._on_wind,
                                 history=self.history, mounting=self._mounting).start()
 

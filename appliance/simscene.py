@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from appliance.config import SimulationConfig
+from appliance.progress import ProgressBar
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 
@@ -46,16 +47,6 @@ def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
     params["version"] = SCENE_VERSION
     text = json.dumps(params, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _progress(done: int, total: int) -> None:
-    width = 30
-    filled = width * done // max(total, 1)
-    sys.stderr.write(f"\rrendering simulated scene [{'#' * filled}{'.' * (width - filled)}] "
-                     f"{done}/{total}")
-    if done >= total:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
 
 
 def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float],
@@ -91,7 +82,8 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
         sys.stderr.write(f"ogiflow: rendering the simulated gas scene once into {folder} "
                          "(cached for later runs)\n")
     root.mkdir(parents=True, exist_ok=True)
-    write_sequence(folder, config.meta(), generate_sequence(config, None if quiet else _progress))
+    progress = None if quiet else ProgressBar("rendering simulated scene", unit="frames")
+    write_sequence(folder, config.meta(), generate_sequence(config, progress))
     return folder
 
 

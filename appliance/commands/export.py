@@ -69,20 +69,15 @@ def wind_row(topic: str, m: dict[str, Any]) -> dict[str, Any]:
             "z_m_s": v[2], "speed_m_s": m.get("speed_m_s"), "status": None}
 
 
-def _progress(done: int, total: int) -> None:
-    width = 30
-    frac = done / total if total else 1.0
-    sys.stderr.write(f"\rexport [{'#' * int(width * frac):<{width}}] {100 * frac:5.1f} %")
-    sys.stderr.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     from appliance.logread import iter_json
+    from appliance.progress import ProgressBar
 
     if not args.file.is_file():
         raise ValueError(f"{args.file}: no such file")
     out = args.out if args.out is not None else args.file.with_suffix("")
     reader, messages = iter_json(args.file, ("/sceneflow/summary", "/wind/raw", "/wind/camera"))
+    progress = ProgressBar("export")
     summaries: list[dict[str, Any]] = []
     winds: list[dict[str, Any]] = []
     for n, (topic, m) in enumerate(messages):
@@ -91,9 +86,8 @@ def run(args: argparse.Namespace) -> int:
         else:
             winds.append(wind_row(topic, m))
         if n % 500 == 0:
-            _progress(reader.bytes_read, reader.size)
-    _progress(reader.size, reader.size)
-    sys.stderr.write("\n")
+            progress(reader.bytes_read, reader.size)
+    progress(reader.size, reader.size)
     if args.to == "csv":
         paths = [Path(f"{out}_summary.csv"), Path(f"{out}_wind.csv")]
         for path, rows, cols in ((paths[0], summaries, SUMMARY_COLUMNS),

@@ -224,8 +224,11 @@ def run(args: argparse.Namespace) -> int:
         publisher.publish(base)
         while recorder.stats().queue_depth > 1000:  # offline: wait for the writer, never drop
             time.sleep(0.01)
-        sys.stderr.write(f"\rreplay: {index} pairs, {processed} processed")
-        sys.stderr.flush()
+        if sys.stderr.isatty():
+            sys.stderr.write(f"\rreplay: {index} pairs, {processed} processed")
+            sys.stderr.flush()
+        elif processed % 100 == 0:
+            print(f"replay: {index} pairs, {processed} processed", file=sys.stderr)
 
     try:
         for side, frame in reader:
@@ -234,7 +237,8 @@ def run(args: argparse.Namespace) -> int:
         for pair in stamper.flush():
             handle(pair)
     finally:
-        sys.stderr.write("\n")
+        if sys.stderr.isatty():
+            sys.stderr.write("\n")
         if live is not None:
             live.close()
         recorder.close(timeout=30.0)

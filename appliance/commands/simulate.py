@@ -10,9 +10,10 @@ import argparse
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any
 
 from appliance.cli import CommandError
+from appliance.progress import ProgressBar
 
 _PRESET_HELP = (
     "preset to generate (repeatable): table2 (= table2_1, table2_2, table2_3; the default), "
@@ -137,28 +138,6 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
     return cfg
 
 
-class _Progress:
-    """A plain-text progress bar on a stream: redrawn in place on a terminal, lines otherwise."""
-
-    def __init__(self, label: str, stream: TextIO, width: int = 30):
-        self.label = label
-        self.stream = stream
-        self.width = width
-        self.start = time.perf_counter()
-        self.tty = stream.isatty()
-
-    def __call__(self, done: int, total: int) -> None:
-        fill = int(self.width * done / total) if total else self.width
-        bar = "#" * fill + "." * (self.width - fill)
-        stage = "spin-up done" if done == 0 else f"{done}/{total} frames"
-        text = f"{self.label} [{bar}] {stage} {time.perf_counter() - self.start:6.1f} s"
-        if self.tty:
-            self.stream.write("\r" + text + ("\n" if done == total else ""))
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     """Generate the requested sequences; print one summary line per sequence."""
     from processing.synthetic.sequences import (
@@ -183,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         per_frame: list[dict[str, Any]] = []
 
         def frames(cfg: Any = cfg, per_frame: list[dict[str, Any]] = per_frame) -> Any:
-            for f in generate_sequence(cfg, progress=_Progress(cfg.name, sys.stderr)):
+            for f in generate_sequence(cfg, progress=ProgressBar(cfg.name, sys.stderr, unit="frames")):
                 per_frame.append(frame_characteristics(f))
                 yield f
 
