@@ -162,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
         per_frame: list[dict[str, Any]] = []
 
         def frames(cfg: Any = cfg, per_frame: list[dict[str, Any]] = per_frame) -> Any:
-            for f in generate_sequence(cfg, progress=ProgressBar(cfg.name, sys.stderr, unit="frames")):
+            bar = ProgressBar(cfg.name, sys.stderr, unit="frames")
+            for f in generate_sequence(cfg, progress=bar):
                 per_frame.append(frame_characteristics(f))
                 yield f
 
