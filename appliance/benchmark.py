@@ -91,16 +91,20 @@ def geometry() -> Any:
 
 
 def single_thread() -> None:
-    """Pin OpenCV and numba to one thread in this process: the targets are per core.
-
-    (benchmarks/common.py has the same helper; the installed CLI cannot import benchmarks/.)
-    """
+    """Set a process up as the appliance's workers are: OpenCV and numba on one thread (the
+    targets are per core) and glibc's allocator tuned (:mod:`appliance.tuning`)."""
     import cv2
 
-    cv2.setNumThreads(1)
-    import numba
+    from appliance.tuning import keep_freed_memory
 
-    numba.set_num_threads(1)
+    keep_freed_memory()
+    cv2.setNumThreads(1)
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):
+        pass
 
 
 # ---------------------------------------------------------------------------- input frames

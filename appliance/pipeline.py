@@ -123,8 +123,10 @@ def worker_main(
         Stereo geometry and chain parameters (see :mod:`processing.chain`).
     """
     from appliance.ring import PairRing
+    from appliance.tuning import keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    keep_freed_memory()
     _single_threaded()
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)

@@ -10,8 +10,11 @@ import statistics
 import time
 from collections.abc import Callable
 
-import cv2
 import numpy as np
+
+from appliance.benchmark import single_thread
+
+__all__ = ["differential_like_pair", "median_ms", "single_thread"]
 
 
 def differential_like_pair(
@@ -52,14 +55,3 @@ def median_ms(fn: Callable[[], object], *, warmup: int = 3, runs: int = 30) -> f
         fn()
         times.append((time.perf_counter() - t) * 1e3)
     return statistics.median(times)
-
-
-def single_thread() -> None:
-    """Pin OpenCV and numba to one thread: the targets are per core."""
-    cv2.setNumThreads(1)
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except (ImportError, ValueError):
-        pass
