@@ -136,7 +136,9 @@ class ChainParameters:
     scale_forgetting : float
         Forgetting factor of the tracked scale (0.02 at 30 Hz ~ 1.7 s memory).
     warm_start : bool
-        Start the flow from the previous triple's result (needs a state).
+        Start the flow and the disparity from the previous triple's results (needs a
+        state; only when this triple directly follows it). The SGM or d0 initialisation
+        is then used only on a cold start.
     flow_options, disparity_options, segmentation_options : mapping
         Further keyword arguments of the three solvers (iteration counts, pyramid ...).
     """
@@ -196,6 +198,7 @@ class ChainState:
 
     scale: DiffScaleTracker | None = None
     previous_flow: np.ndarray | None = None
+    previous_disparity: np.ndarray | None = None
     previous_times: tuple[float, float, float] | None = None
     shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
@@ -375,7 +378,11 @@ def compute_scene_flow(
     t = lap("flow", t)
 
     init_d = None
-    if params.disparity_init == "sgm":
+    if params.warm_start and consecutive and state is not None:
+        # The disparity of the same scene one frame earlier is far closer than any SGM
+        # estimate on differential images, and costs nothing.
+        init_d = state.previous_disparity
+    if init_d is None and params.disparity_init == "sgm":
         # The search starts at d0: a range below the gas's disparity leaves SGM nothing to
         # find, and the joint solver, started far off, does not converge (d' bias).
         init_d = sgbm_initial_disparity(pl.diff0, pr.diff0,
@@ -409,7 +416,7 @@ def compute_scene_flow(
     timings["total"] = (time.perf_counter() - t_start) * 1e3
 
     if state is not None:
-        _update_state(state, params, scale, pl, pr, flow, times)
+        _update_state(state, params, scale, pl, pr, flow, d, times)
     return SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
@@ -421,12 +428,13 @@ def compute_scene_flow(
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,
                   pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
-                  times: tuple[float, float, float]) -> None:
+                  d: np.ndarray, times: tuple[float, float, float]) -> None:
     if params.diff_scale is None:
         if state.scale is None:
             state.scale = DiffScaleTracker(scale, forgetting=params.scale_forgetting)
         state.scale.update(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
     state.previous_flow = flow
+    state.previous_disparity = d
     state.previous_times = times
     # The t1 -> t2 shift of this triple is the t0 -> t1 shift of the next one.
     state.shift01 = (pl.shifts[1], pr.shifts[1])

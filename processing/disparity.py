@@ -220,47 +220,56 @@ def _lagged_iterations(
     n_sor: int,
     omega: float,
 ) -> None:
-    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (d, dp) in place."""
+    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (d, dp) in place.
+
+    As for the flow (:func:`processing.optical_flow._lagged_iterations`), everything stays
+    in compact red-black layout for the whole warp: the per-pixel inputs are split once,
+    psi', edge weights and data terms are computed per colour (the data-term kernel is
+    purely per pixel, so it runs on compact arrays unchanged), and the unknowns are merged
+    back only at the end. This avoids scattering 13 full-grid planes every iteration.
+    """
     h, w = d.shape
-    d0 = d.copy()
-    dp0 = dp.copy()
-    a11 = np.empty((h, w), np.float32)
-    a12 = np.empty((h, w), np.float32)
-    a22 = np.empty((h, w), np.float32)
-    r1 = np.empty((h, w), np.float32)
-    r2 = np.empty((h, w), np.float32)
-    s2 = np.empty((h, w), np.float32)
-    psi = np.empty((h, w), np.float32)
-    wx1 = np.empty((h, w), np.float32)
-    wy1 = np.empty((h, w), np.float32)
-    wx2 = np.empty((h, w), np.float32)
-    wy2 = np.empty((h, w), np.float32)
-    red, black = redblack.empty_system(h, w)
-    cshape = redblack.compact_shape(h, w)
-    dr = np.zeros(cshape, np.float32)
-    db = np.zeros(cshape, np.float32)
-    pr = np.zeros(cshape, np.float32)
-    pb = np.zeros(cshape, np.float32)
-    redblack.split_field(d, dr, db)
-    redblack.split_field(dp, pr, pb)
+    ins = [redblack.split_new(a) for a in (e1, e3, e4, g0, g1, m1, m3, m4)]
+    dr, db = redblack.split_new(d)
+    pr, pb = redblack.split_new(dp)
+    d0 = (dr.copy(), db.copy())
+    dp0 = (pr.copy(), pb.copy())
+    ds = (dr, db)
+    ps = (pr, pb)
+    masks = redblack.border_masks(h, w)
+    coefs = redblack.empty_system(h, w)
+    cshape = dr.shape
+    a11 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    a22 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    s2 = np.zeros(cshape, np.float32)
+    psi_d = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    psi_p = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
     for _ in range(n_inner):
-        disparity_data_terms(e1, e3, e4, g0, g1, m1, m3, m4, d, dp, d0, dp0, eps,
-                             a11, a12, a22, r1, r2)
+        redblack.fill_neumann_ghosts(dr, db, w)
+        redblack.fill_neumann_ghosts(pr, pb, w)
         # Eq. 6 has one penaliser per field: psi(|grad d|^2) and psi(|grad d'|^2), each
         # with its own weight, so the two unknowns diffuse with different edge weights.
-        s2[:] = 0.0
-        redblack.gradient_sq(d, s2)
-        redblack.charbonnier_prime(s2, eps, psi)
-        redblack.edge_weights(psi, gamma1, wx1, wy1)
-        s2[:] = 0.0
-        redblack.gradient_sq(dp, s2)
-        redblack.charbonnier_prime(s2, eps, psi)
-        redblack.edge_weights(psi, gamma2, wx2, wy2)
-        redblack.pack_system(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, red, black)
-        # The compact copies already hold the last solution after the first iteration.
-        redblack.solve_sor(red, black, dr, db, pr, pb, n_sor, omega)
-        redblack.merge_field(dr, db, d)
-        redblack.merge_field(pr, pb, dp)
+        for c in range(2):
+            s2[:] = 0.0
+            redblack.compact_gradient_sq(ds[c], ds[1 - c], c, s2)
+            redblack.compact_charbonnier_prime(s2, eps, psi_d[c])
+            s2[:] = 0.0
+            redblack.compact_gradient_sq(ps[c], ps[1 - c], c, s2)
+            redblack.compact_charbonnier_prime(s2, eps, psi_p[c])
+        for c in range(2):
+            coef = coefs[c]
+            redblack.compact_edge_weights(psi_d[c], psi_d[1 - c], masks[c], gamma1, c, coef,
+                                          redblack.W1)
+            redblack.compact_edge_weights(psi_p[c], psi_p[1 - c], masks[c], gamma2, c, coef,
+                                          redblack.W2)
+            disparity_data_terms(ins[0][c], ins[1][c], ins[2][c], ins[3][c], ins[4][c],
+                                 ins[5][c], ins[6][c], ins[7][c], ds[c], ps[c], d0[c], dp0[c],
+                                 eps, a11[c], coef[redblack.A12], a22[c], coef[redblack.R1],
+                                 coef[redblack.R2])
+            redblack.finish_diagonals(coef, a11[c], a22[c])
+        redblack.solve_sor(coefs[0], coefs[1], dr, db, pr, pb, n_sor, omega)
+    redblack.merge_field(dr, db, d)
+    redblack.merge_field(pr, pb, dp)
 
 
 def _level_disparity(

@@ -115,15 +115,6 @@ def _compact_data_terms(
 
 
 @numba.njit(cache=True)
-def _split(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    h, w = field.shape
-    red = np.zeros(redblack.compact_shape(h, w), np.float32)
-    black = np.zeros_like(red)
-    redblack.split_field(field, red, black)
-    return red, black
-
-
-@numba.njit(cache=True)
 def _lagged_iterations(
     iz: np.ndarray,
     ix: np.ndarray,
@@ -150,9 +141,9 @@ def _lagged_iterations(
     are merged back only at the end.
     """
     h, w = u.shape
-    inputs = [_split(a) for a in (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid)]
-    ur, ub = _split(u)
-    vr, vb = _split(v)
+    inputs = [redblack.split_new(a) for a in (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid)]
+    ur, ub = redblack.split_new(u)
+    vr, vb = redblack.split_new(v)
     u0 = (ur.copy(), ub.copy())
     v0 = (vr.copy(), vb.copy())
     masks = redblack.border_masks(h, w)

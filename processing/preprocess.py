@@ -36,7 +36,7 @@ import numpy as np
 
 from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
 from processing.denoise import sobolev_denoise
-from processing.registration import estimate_shift, warp_translation
+from processing.registration import estimate_shift_checked, warp_translation
 from processing.validation import as_float_image, check_positive, check_same_shape
 
 
@@ -258,7 +258,8 @@ def preprocess_camera(
         background; in front of a featureless one (sky, a uniform wall, the synthetic
         data) it locks onto the moving gas instead and would cancel the very motion we
         measure. Camera jitter is sub-pixel (paper Sec. 4.1), so an estimate larger than
-        this is treated as gas motion: not applied, and counted in ``rejected_shifts``.
+        this, or one whose refinement did not converge (no rigid shift explains the
+        change), is treated as gas motion: not applied, and counted in ``rejected_shifts``.
 
     Returns
     -------
@@ -285,15 +286,16 @@ def preprocess_camera(
     if register:
         max_shift = check_positive(max_shift_px, "max_shift_px")
 
-        def plausible(shift: tuple[float, float]) -> tuple[float, float]:
+        def plausible(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
             nonlocal rejected
-            if float(np.hypot(*shift)) <= max_shift:
+            shift, converged = estimate_shift_checked(a, b, max_iter=10)
+            if converged and float(np.hypot(*shift)) <= max_shift:
                 return shift
             rejected += 1
             return (0.0, 0.0)
 
-        s01 = shift01 if shift01 is not None else plausible(estimate_shift(imgs[0], imgs[1]))
-        s12 = plausible(estimate_shift(imgs[1], imgs[2]))
+        s01 = shift01 if shift01 is not None else plausible(imgs[0], imgs[1])
+        s12 = plausible(imgs[1], imgs[2])
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)

@@ -207,6 +207,16 @@ def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
 
 
 @numba.njit(cache=True)
+def split_new(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`split_field` into newly allocated compact arrays (red, black)."""
+    h, w = field.shape
+    red = np.zeros((h + 2, (w + 1) // 2 + 2), np.float32)
+    black = np.zeros_like(red)
+    split_field(field, red, black)
+    return red, black
+
+
+@numba.njit(cache=True)
 def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
     """Gather compact red/black arrays back into a full-grid field ``out`` (H, W), in place."""
     h, w = out.shape

@@ -154,6 +154,26 @@ def estimate_shift(
 ) -> tuple[float, float]:
     """Sub-pixel translation of ``moving`` with respect to ``reference``.
 
+    :func:`estimate_shift_checked` without the convergence flag; see there.
+    """
+    shift, _converged = estimate_shift_checked(
+        reference, moving, max_iter=max_iter, tol=tol, border=border,
+        smooth_sigma=smooth_sigma, robust_scale=robust_scale)
+    return shift
+
+
+def estimate_shift_checked(
+    reference: np.ndarray,
+    moving: np.ndarray,
+    *,
+    max_iter: int = 20,
+    tol: float = 5e-3,
+    border: int = 8,
+    smooth_sigma: float = 1.0,
+    robust_scale: float = 2.0,
+) -> tuple[tuple[float, float], bool]:
+    """Sub-pixel translation of ``moving`` with respect to ``reference``.
+
     Parameters
     ----------
     reference, moving : ndarray, shape (H, W), float
@@ -175,6 +195,11 @@ def estimate_shift(
     -------
     (float, float)
         (dx, dy) in px with ``moving(x + d) ~ reference(x)``.
+    bool
+        True when the Gauss-Newton refinement converged (step below ``tol``). Camera
+        jitter over a static scene converges in a few steps; when it does not, no rigid
+        shift explains the change (e.g. moving gas in front of a featureless background)
+        and the estimate must not be applied.
 
     Raises
     ------
@@ -214,21 +239,23 @@ def estimate_shift(
 
     for _ in range(max_iter):
         if max(abs(dx), abs(dy)) + 3 > min(h, w) // 2:
-            break  # diverged far beyond any jitter; keep the last estimate
+            return (float(dx), float(dy)), False  # diverged far beyond any jitter
         resid = warp_translation(mov, (dx, dy))
         resid -= ref
         a11, a12, a22, b1, b2 = _gauss_newton_sums(resid, gx, gy, border, robust_scale)
         det = a11 * a22 - a12 * a12
         if det <= 0.0:
-            break
+            return (float(dx), float(dy)), False
         # moving(x + d + delta) ~ moving(x + d) + grad . delta = reference(x)
         step_x = -(a22 * b1 - a12 * b2) / det
         step_y = -(a11 * b2 - a12 * b1) / det
         dx += step_x
         dy += step_y
         if step_x * step_x + step_y * step_y < tol * tol:
-            break
-    return float(dx), float(dy)
+            return (float(dx), float(dy)), True
+    # No convergence: a rigid shift does not explain the change (moving gas over a
+    # featureless background, not camera jitter over a static scene).
+    return (float(dx), float(dy)), False
 
 
 def register_to_reference(

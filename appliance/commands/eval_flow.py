@@ -176,7 +176,7 @@ def format_grid(results: dict[str, dict[str, dict[str, float]]]) -> str:
     """Paper Table 1 layout: rows alpha, columns beta, cells = AEE per sequence (ours | paper)."""
     seqs = list(results)
     lines = [f"Brox AEE in px, ({', '.join(seqs)}); paper Table 1 in brackets"]
-    betas = "".join(f"{'beta=' + format(b, 'g'):>34s}" for b in TABLE1_BETAS)
+    betas = "".join(f"{'beta=' + format(b, 'g'):>38s}" for b in TABLE1_BETAS)
     lines.append(f"{'alpha':>6s}{betas}")
     for a in TABLE1_ALPHAS:
         row = f"{a:>6g}"
@@ -185,6 +185,6 @@ def format_grid(results: dict[str, dict[str, dict[str, float]]]) -> str:
             ours = ", ".join(f"{results[s][name]['aee']:.2f}" for s in seqs)
             paper = TABLE1_PAPER.get((a, b))
             ref = f" [{', '.join(f'{x:.1f}' for x in paper)}]" if paper and len(seqs) == 3 else ""
-            row += f"{'(' + ours + ')' + ref:>34s}"
+            row += f"{'(' + ours + ')' + ref:>38s}"
         lines.append(row)
     return "\n".join(lines)
