@@ -39,14 +39,12 @@ import numpy as np
 
 from processing import derivatives, pyramid, redblack
 from processing.validation import (
+    MIN_IMAGE_SIZE,
     as_float_image,
     as_flow_field,
     check_positive,
     check_same_shape,
 )
-
-#: Smallest accepted image side in pixels (the 5-tap derivative needs a few pixels).
-MIN_IMAGE_SIZE = 8
 
 
 @numba.njit(cache=True, fastmath=True)

@@ -8,6 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Smallest image side in pixels the variational solvers accept (the 5-tap derivative and
+#: the coarsest pyramid level need a few pixels).
+MIN_IMAGE_SIZE = 8
+
 
 def as_float_image(image: np.ndarray, name: str, *, min_size: int = 1) -> np.ndarray:
     """Check one 2-D floating-point image and return it as C-contiguous float32.
