@@ -33,8 +33,9 @@ def _warp(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray
 
 
 def _grad_sq(f: np.ndarray) -> np.ndarray:
-    # Central differences inside, one-sided on the border: the discretisation the solver's
-    # lagged weights use (processing.redblack.gradient_sq).
+    # Central differences inside, as the solvers' lagged weights
+    # (processing.redblack.compact_gradient_sq); on the border rows and columns np.gradient
+    # is one-sided where the solvers use half of that (Neumann ghost values).
     gy, gx = np.gradient(f)
     return (gx * gx + gy * gy).astype(np.float32)
 

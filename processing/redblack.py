@@ -113,7 +113,7 @@ def pack_system(
         Data block and right-hand side of every pixel.
     wx1, wx2 : ndarray, shape (H, W), float32
         Weight of the edge between (y, x) and (y, x+1) for unknown 1 and 2. The last
-        column MUST be zero (there is no right neighbour; see :func:`edge_weights`).
+        column MUST be zero (there is no right neighbour).
     wy1, wy2 : ndarray, shape (H, W), float32
         Weight of the edge between (y, x) and (y+1, x). The last row MUST be zero.
     red, black : ndarray, shape (13, H+2, W2+2), float32
@@ -126,71 +126,6 @@ def pack_system(
     black[:] = 0.0
     _pack_colour(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, red, 0)
     _pack_colour(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, black, 1)
-
-
-@numba.njit(cache=True, fastmath=True)
-def edge_weights(psi: np.ndarray, scale: float, wx: np.ndarray, wy: np.ndarray) -> None:
-    """Edge weights of a smoothness term from per-pixel lagged psi' (arithmetic mean).
-
-    ``wx[y, x]`` couples (y, x) with (y, x+1), ``wy[y, x]`` couples (y, x) with (y+1, x);
-    both are ``scale`` (alpha, gamma1 or gamma2) times the mean psi' of the two pixels.
-    The last column of ``wx`` and the last row of ``wy`` are set to zero, as
-    :func:`pack_system` requires.
-    """
-    h, w = psi.shape
-    half = np.float32(0.5 * scale)
-    for y in range(h):
-        p = psi[y]
-        o = wx[y]
-        for x in range(w - 1):
-            o[x] = half * (p[x] + p[x + 1])
-        o[w - 1] = 0.0
-    for y in range(h - 1):
-        p0 = psi[y]
-        p1 = psi[y + 1]
-        o = wy[y]
-        for x in range(w):
-            o[x] = half * (p0[x] + p1[x])
-    wy[h - 1, :] = 0.0
-
-
-@numba.njit(cache=True, fastmath=True)
-def gradient_sq(f: np.ndarray, out: np.ndarray) -> None:
-    """Add |grad f|^2 per pixel to ``out`` (both (H, W) float32).
-
-    Central differences inside, one-sided differences on the border rows and columns.
-    """
-    h, w = f.shape
-    for y in range(h):
-        y0 = y - 1 if y > 0 else 0
-        y1 = y + 1 if y < h - 1 else h - 1
-        sy = 1.0 / (y1 - y0)
-        fu = f[y0]
-        fd = f[y1]
-        fr = f[y]
-        o = out[y]
-        for x in range(1, w - 1):
-            gx = 0.5 * (fr[x + 1] - fr[x - 1])
-            gy = (fd[x] - fu[x]) * sy
-            o[x] += gx * gx + gy * gy
-        for x in (0, w - 1):
-            x0 = x - 1 if x > 0 else 0
-            x1 = x + 1 if x < w - 1 else w - 1
-            gx = (fr[x1] - fr[x0]) / max(x1 - x0, 1)
-            gy = (fd[x] - fu[x]) * sy
-            o[x] += gx * gx + gy * gy
-
-
-@numba.njit(cache=True, fastmath=True)
-def charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> None:
-    """psi'(s^2) without its constant factor: out = 1 / sqrt(s^2 + eps^2), per pixel."""
-    h, w = s2.shape
-    e2 = np.float32(eps * eps)  # float32 keeps the loop in single-precision SIMD
-    for y in range(h):
-        a = s2[y]
-        o = out[y]
-        for x in range(w):
-            o[x] = 1.0 / np.sqrt(a[x] + e2)
 
 
 @numba.njit(cache=True)
