@@ -243,17 +243,10 @@ def _lagged_iterations(
     psi_d = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
     psi_p = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
     for _ in range(n_inner):
-        redblack.fill_neumann_ghosts(dr, db, w)
-        redblack.fill_neumann_ghosts(pr, pb, w)
         # Eq. 6 has one penaliser per field: psi(|grad d|^2) and psi(|grad d'|^2), each
         # with its own weight, so the two unknowns diffuse with different edge weights.
-        for c in range(2):
-            s2[:] = 0.0
-            redblack.compact_gradient_sq(ds[c], ds[1 - c], c, s2)
-            redblack.compact_charbonnier_prime(s2, eps, psi_d[c])
-            s2[:] = 0.0
-            redblack.compact_gradient_sq(ps[c], ps[1 - c], c, s2)
-            redblack.compact_charbonnier_prime(s2, eps, psi_p[c])
+        redblack.lagged_psi((ds,), w, eps, s2, psi_d)
+        redblack.lagged_psi((ps,), w, eps, s2, psi_p)
         for c in range(2):
             coef = coefs[c]
             redblack.compact_edge_weights(psi_d[c], psi_d[1 - c], masks[c], gamma1, c, coef,

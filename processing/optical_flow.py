@@ -149,19 +149,13 @@ def _lagged_iterations(
     cshape = ur.shape
     a11 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
     a22 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
-    s2 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
+    s2 = np.zeros(cshape, np.float32)
     psi = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
     us = (ur, ub)
     vs = (vr, vb)
     for _ in range(n_inner):
-        redblack.fill_neumann_ghosts(ur, ub, w)
-        redblack.fill_neumann_ghosts(vr, vb, w)
-        for c in range(2):
-            # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
-            s2[c][:] = 0.0
-            redblack.compact_gradient_sq(us[c], us[1 - c], c, s2[c])
-            redblack.compact_gradient_sq(vs[c], vs[1 - c], c, s2[c])
-            redblack.compact_charbonnier_prime(s2[c], eps, psi[c])
+        # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
+        redblack.lagged_psi((us, vs), w, eps, s2, psi)
         for c in range(2):
             coef = coefs[c]
             redblack.compact_edge_weights(psi[c], psi[1 - c], masks[c], alpha, c, coef,

@@ -339,6 +339,40 @@ def compact_charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> No
             o[x] = np.float32(1.0) / np.sqrt(a[x] + e2)
 
 
+@numba.njit(cache=True)
+def lagged_psi(
+    fields: tuple[tuple[np.ndarray, np.ndarray], ...],
+    width: int,
+    eps: float,
+    s2: np.ndarray,
+    psi: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """Lagged weight psi'(sum |grad f|^2) of one Charbonnier smoothness term, per colour.
+
+    Parameters
+    ----------
+    fields : tuple of (red, black) pairs of compact arrays (H+2, W2+2), float32
+        The fields one penaliser acts on jointly: (u, v) for the flow (Eq. 5 penalises
+        |grad u|^2 + |grad v|^2 together), a single field for each of d and d' (Eq. 6 has
+        one penaliser per field). Their halos are overwritten with Neumann ghost values.
+    width : int
+        Image width W (locates the right-border ghosts).
+    eps : float
+        Charbonnier epsilon.
+    s2 : ndarray (H+2, W2+2), float32
+        Scratch space.
+    psi : (red, black) compact arrays
+        Output: 1 / sqrt(sum |grad f|^2 + eps^2) at the pixels of each colour.
+    """
+    for f in fields:
+        fill_neumann_ghosts(f[0], f[1], width)
+    for c in range(2):
+        s2[:] = 0.0
+        for f in fields:
+            compact_gradient_sq(f[c], f[1 - c], c, s2)
+        compact_charbonnier_prime(s2, eps, psi[c])
+
+
 @numba.njit(cache=True, fastmath=True)
 def compact_edge_weights(
     psi_own: np.ndarray,
