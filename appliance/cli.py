@@ -82,7 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ogiflow`` console script; returns the process exit code."""
-    from appliance.tuning import keep_freed_memory
+    from appliance.runtime.tuning import keep_freed_memory
 
     keep_freed_memory()
     parser = build_parser()

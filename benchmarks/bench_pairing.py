@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from appliance.clock import ClockModel
-from appliance.pairing import StereoPairer
+from appliance.runtime.clock import ClockModel
+from appliance.runtime.pairing import StereoPairer
 from drivers.camera.simulated import SimulatedCamera
 from drivers.camera.sources import TexturePatternSource
 

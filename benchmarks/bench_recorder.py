@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from appliance import schemas as S
 from appliance.config import RecordingConfig
-from appliance.recorder import Recorder, closed_files
+from appliance.recording import schemas as S
+from appliance.recording.recorder import Recorder, closed_files
 
 
 def _frames(n: int) -> list[bytes]:

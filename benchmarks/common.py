@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from appliance.benchmark import single_thread
+from appliance.evaluation.benchmark import single_thread
 
 __all__ = ["differential_like_pair", "median_ms", "single_thread"]
 

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from appliance import benchmark as bm
 from appliance import cli
+from appliance.evaluation import benchmark as bm
 
 
 def _positive_finite(x: object) -> bool:

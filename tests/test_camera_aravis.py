@@ -194,8 +194,8 @@ def _scenario_pair() -> dict:
     import threading
     import time
 
-    from appliance.clock import ClockModel
-    from appliance.pairing import StereoPairer
+    from appliance.runtime.clock import ClockModel
+    from appliance.runtime.pairing import StereoPairer
     from drivers.camera import CameraError, create_camera
 
     ip_left, ip_right = _addresses(2)

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from appliance.clock import ClockModel
-from appliance.pairing import StereoPairer
+from appliance.runtime.clock import ClockModel
+from appliance.runtime.pairing import StereoPairer
 from drivers.camera import (
     CameraBackendMissing,
     CameraError,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from appliance.clock import ClockModel, lower_envelope_fit
+from appliance.runtime.clock import ClockModel, lower_envelope_fit
 
 P = 33_333_333
 

@@ -21,8 +21,8 @@ import pytest
 
 from appliance import cli
 from appliance.config import load_config
-from appliance.daemon import Appliance
-from appliance.logread import LogReader, read_metadata
+from appliance.recording.reader import LogReader, read_metadata
+from appliance.runtime.daemon import Appliance
 
 SMALL_SCENE = [
     ("simulation.frames", 24),

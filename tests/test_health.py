@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from appliance import schemas as S
-from appliance.health import (
+from appliance.recording import schemas as S
+from appliance.runtime.health import (
     HealthMonitor,
     HealthReporter,
     HealthSnapshot,
@@ -21,7 +21,7 @@ from appliance.health import (
     mcap_sink,
     status_line,
 )
-from appliance.sdnotify import SdNotifier, Watchdog
+from appliance.runtime.sdnotify import SdNotifier, Watchdog
 
 
 def test_rates_drops_latencies_counters_gauges(tmp_path: Path) -> None:

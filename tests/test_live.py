@@ -17,8 +17,7 @@ import numpy as np
 import pytest
 
 from appliance.config import LiveConfig
-from appliance.health import HealthMonitor
-from appliance.live import (
+from appliance.live.view import (
     LiveFrame,
     LiveScalars,
     LiveView,
@@ -29,6 +28,7 @@ from appliance.live import (
     blueprint,
     health_scalars,
 )
+from appliance.runtime.health import HealthMonitor
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -128,7 +128,7 @@ STALLED_CHILD = textwrap.dedent("""
     import dataclasses, os, socket, sys, threading, time
     import numpy as np
     from appliance.config import LiveConfig
-    from appliance.live import LiveFrame, LiveView
+    from appliance.live.view import LiveFrame, LiveView
     srv = socket.socket()
     srv.bind(("127.0.0.1", 0))
     srv.listen(8)

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from appliance import schemas as S
 from appliance.config import Config, LiveConfig, RecordingConfig
-from appliance.health import HealthMonitor, HealthReporter, live_sink, log_sink, mcap_sink
-from appliance.live import LiveFrame, LiveView
-from appliance.recorder import Recorder, closed_files, file_metadata
-from appliance.ring import PairRing
+from appliance.live.view import LiveFrame, LiveView
+from appliance.recording import schemas as S
+from appliance.recording.recorder import Recorder, closed_files, file_metadata
+from appliance.runtime.health import HealthMonitor, HealthReporter, live_sink, log_sink, mcap_sink
+from appliance.runtime.ring import PairRing
 
 PAIRS = 300
 

@@ -6,7 +6,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appliance.pairing import StereoPairer
+from appliance.runtime.pairing import StereoPairer
 
 P = 33_333_333
 

@@ -37,8 +37,8 @@ def test_clockless_cameras_pair_by_smoothed_arrivals() -> None:
 def test_right_camera_restart_resets_its_clock_and_pairing_resumes() -> None:
     """The right camera stops at 20 s and comes back at 23 s with its device clock and
     frame ids restarted from zero; the same clock models and pairer carry on."""
-    from appliance.clock import ClockModel
-    from appliance.pairing import StereoPairer
+    from appliance.runtime.clock import ClockModel
+    from appliance.runtime.pairing import StereoPairer
     from drivers.camera.simulated import SimulatedCamera
     from drivers.camera.sources import TexturePatternSource
 

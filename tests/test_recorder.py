@@ -14,9 +14,9 @@ from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
 
-from appliance import schemas as S
 from appliance.config import Config, RecordingConfig, load_config
-from appliance.recorder import Recorder, closed_files, file_metadata, unfinished_files
+from appliance.recording import schemas as S
+from appliance.recording.recorder import Recorder, closed_files, file_metadata, unfinished_files
 
 
 def _rc(tmp_path: Path, **kw: object) -> RecordingConfig:

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 
-from appliance import schemas as S
 from appliance.config import Config, RecordingConfig
-from appliance.recorder import Recorder, closed_files, file_metadata
+from appliance.recording import schemas as S
+from appliance.recording.recorder import Recorder, closed_files, file_metadata
 
 
 def test_raw_image_round_trip_all_dtypes() -> None:

@@ -18,9 +18,9 @@ from mcap.records import Chunk
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from appliance import cli
-from appliance import schemas as S
-from appliance.mcap_recovery import default_output, recover, recover_unfinished
-from appliance.recorder import unfinished_files
+from appliance.recording import schemas as S
+from appliance.recording.recorder import unfinished_files
+from appliance.recording.recovery import default_output, recover, recover_unfinished
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -28,9 +28,9 @@ CHILD = textwrap.dedent("""
     import dataclasses, sys, time
     from pathlib import Path
     import numpy as np
-    from appliance import schemas as S
+    from appliance.recording import schemas as S
     from appliance.config import Config, RecordingConfig
-    from appliance.recorder import Recorder, file_metadata
+    from appliance.recording.recorder import Recorder, file_metadata
     rc = dataclasses.replace(RecordingConfig(), dir=Path(sys.argv[1]), chunk_kb=16,
                              fsync_s=0.05, quota_gb=None)
     rec = Recorder(rc, file_metadata(Config(), "cal: 1\\n")).start()

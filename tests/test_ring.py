@@ -7,7 +7,7 @@ import multiprocessing
 import numpy as np
 import pytest
 
-from appliance.ring import PairRing, RingHandle
+from appliance.runtime.ring import PairRing, RingHandle
 
 SHAPE = (24, 32)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from appliance.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 
 
 @pytest.fixture(params=["path", "abstract"])

@@ -1,6 +1,6 @@
 """``ogiflow bench``: speed of the whole scene-flow chain at 320x240 (issue 3 item 10).
 
-See :mod:`appliance.benchmark` for what is measured and on which input.
+See :mod:`appliance.evaluation.benchmark` for what is measured and on which input.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def _check_args(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Measure and print (and optionally write) the chain's speed."""
     _check_args(args)
-    from appliance import benchmark as bm
+    from appliance.evaluation import benchmark as bm
 
     load_start = bm.load_average()
     frames = bm.load_frames(args.source, n_frames=args.frames, cache_dir=args.cache_dir)

@@ -70,8 +70,8 @@ def wind_row(topic: str, m: dict[str, Any]) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.logread import iter_json
     from appliance.progress import ProgressBar
+    from appliance.recording.reader import iter_json
 
     if not args.file.is_file():
         raise ValueError(f"{args.file}: no such file")

@@ -30,7 +30,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Recover ``args.file``; print what was kept."""
-    from appliance.mcap_recovery import recover
+    from appliance.recording.recovery import recover
 
     if not args.file.is_file():
         raise ValueError(f"no such file: {args.file}")

@@ -103,8 +103,8 @@ def _recorded_config(meta: dict[str, dict[str, str]]) -> dict[str, Any]:
 
 def _wind_history(path: Path, config: dict[str, Any], publisher: Any) -> Any:
     """Rebuild the wind history (camera frame) from the recorded raw samples; copy them."""
-    from appliance import schemas
-    from appliance.logread import iter_json
+    from appliance.recording import schemas
+    from appliance.recording.reader import iter_json
     from drivers.anemometer.base import AnemometerConfigError
     from drivers.anemometer.history import WindHistory
     from drivers.anemometer.mounting import CameraWind, Mounting
@@ -128,7 +128,7 @@ def _wind_history(path: Path, config: dict[str, Any], publisher: Any) -> Any:
 
 
 def _wall_offset(path: Path) -> int:
-    from appliance.logread import iter_json
+    from appliance.recording.reader import iter_json
 
     _reader, messages = iter_json(path, ["/pairs", "/wind/raw"])
     for _topic, m in messages:
@@ -138,10 +138,11 @@ def _wall_offset(path: Path) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from appliance.config import RecordingConfig, live_overrides, load_config
-    from appliance.logread import read_metadata
-    from appliance.pipeline import WorkerResult, compute_scene_flow_on, pack_result
-    from appliance.recorder import Recorder
-    from appliance.results import ResultPublisher, StereoStamper
+    from appliance.recording.reader import read_metadata
+    from appliance.recording.recorder import Recorder
+    from appliance.runtime.publishing import ResultPublisher
+    from appliance.runtime.stamping import StereoStamper
+    from appliance.runtime.workers import WorkerResult, compute_scene_flow_on, pack_result
     from drivers.camera.mcap_format import FrameLogReader
     from processing.chain import ChainState
 
@@ -173,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
     recorder = Recorder(rc, replay_meta).start()
     live = None
     if args.live != ["off"]:
-        from appliance.live import LiveView
+        from appliance.live.view import LiveView
 
         live_cfg = load_config(None, live_overrides(args.live)).live
         live = LiveView(live_cfg).start()

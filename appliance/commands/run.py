@@ -35,8 +35,8 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from appliance.config import config_from_args
-    from appliance.daemon import Appliance
-    from appliance.live import LiveViewError
+    from appliance.live.view import LiveViewError
+    from appliance.runtime.daemon import Appliance
 
     logging.basicConfig(level=getattr(logging, args.log_level), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

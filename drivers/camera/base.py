@@ -8,7 +8,7 @@ python-can's ``BusABC._recv_internal``).
 
 Time: ``Frame.host_ns`` is ``time.monotonic_ns()`` taken when the frame reached the host (or,
 for replay, the value recorded at the original arrival). Pairing and clock estimation work on
-this monotonic timeline (see ``appliance.clock``); wall-clock time is only logged alongside.
+this monotonic timeline (see ``appliance.runtime.clock``); wall-clock time is only logged alongside.
 """
 
 from __future__ import annotations

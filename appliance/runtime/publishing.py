@@ -1,12 +1,10 @@
-"""Publishing scene-flow results and stamping/pairing frames: shared by run and replay.
+"""Publishing scene-flow results: shared by ``ogiflow run`` and ``ogiflow replay``.
 
-:class:`ResultPublisher` turns a :class:`~appliance.pipeline.WorkerResult` into what the
+:class:`ResultPublisher` turns a :class:`~appliance.runtime.workers.WorkerResult` into what the
 user gets: the per-frame summary (with validity and flags) and, every N-th result, the
 full fields in the MCAP file, the wind in the camera frame at the pair's time, and the
-live-view item. :class:`StereoStamper` turns camera frames into stereo pairs: a clock
-model per camera (device clock against host monotonic time, arrival jitter removed) and
-the time-based pairer. ``ogiflow run`` and ``ogiflow replay`` use both, so a replayed
-recording is paired and published exactly as it was live.
+live-view item. Run and replay share it, so a replayed recording is published exactly as
+it was live.
 """
 
 from __future__ import annotations
@@ -17,54 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from appliance import schemas
-from appliance.pipeline import WorkerResult
-
-SIDES = ("left", "right")
-
-
-def directional_angles(v: np.ndarray) -> tuple[float, float, float] | None:
-    """Angles of a vector to X, Y, Z in degrees (paper footnote 1); None for a zero vector."""
-    n = float(np.linalg.norm(v))
-    if not np.isfinite(n) or n == 0.0:
-        return None
-    c = np.clip(np.asarray(v, dtype=np.float64) / n, -1.0, 1.0)
-    return tuple(float(a) for a in np.degrees(np.arccos(c)))  # type: ignore[return-value]
-
-
-class StereoStamper:
-    """Clock model per camera + stereo pairer (paper Sec. 4.1: cameras not triggered).
-
-    Parameters
-    ----------
-    frame_rate_hz : float
-        Nominal frame rate of both cameras.
-    tolerance_s : float or None
-        Pairing tolerance; None = half a frame period.
-    """
-
-    def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None) -> None:
-        from appliance.clock import ClockModel
-        from appliance.pairing import StereoPairer
-
-        period = int(1e9 / frame_rate_hz)
-        self.pairer: StereoPairer[Any] = StereoPairer(
-            period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9))
-        self.clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
-
-    def push(self, side: str, frame: Any, now_ns: int | None) -> list[Any]:
-        """Stamp one frame (capture time from its clock model) and return new pairs."""
-        t = self.clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
-        return self.pairer.push(side, t, frame, now_ns=now_ns)
-
-    def poll(self, now_ns: int) -> list[Any]:
-        return self.pairer.poll(now_ns)
-
-    def flush(self) -> list[Any]:
-        return self.pairer.flush()
-
-    def unpaired(self) -> dict[str, int]:
-        return {s: self.pairer.stats.unpaired(s) for s in SIDES}
+from appliance.recording import schemas
+from appliance.runtime.workers import WorkerResult
+from processing.summary import directional_angles
 
 
 class ResultPublisher:
@@ -72,8 +25,8 @@ class ResultPublisher:
 
     Parameters
     ----------
-    recorder : appliance.recorder.Recorder or None
-    live : appliance.live.LiveView or None
+    recorder : appliance.recording.recorder.Recorder or None
+    live : appliance.live.view.LiveView or None
     wall_ns : callable
         Host monotonic ns -> UNIX ns.
     fields_every : int
@@ -160,6 +113,8 @@ class ResultPublisher:
         if not at.ok:
             return None
         v = np.asarray(at.vector, dtype=np.float64)
+        if not np.all(np.isfinite(v)):
+            return None  # a failed axis is no wind measurement, not a calm
         self.record_json("/wind/camera", schemas.WIND_CAMERA, {
             "t_mono_ns": t_mono, "t_wall_ns": self.wall_ns(t_mono), "pair_index": pair_index,
             "velocity_m_s": [float(x) for x in v], "speed_m_s": float(np.linalg.norm(v)),
@@ -169,7 +124,7 @@ class ResultPublisher:
 
     def _push_live(self, res: WorkerResult, summary: dict[str, Any], wind: np.ndarray | None,
                    truth: np.ndarray | None, t1: int) -> None:
-        from appliance.live import LiveFrame
+        from appliance.live.view import LiveFrame
 
         ok = summary["valid"]
         self.live.push(LiveFrame(

@@ -250,7 +250,7 @@ def recover_unfinished(directory: str | Path, *, remove_source: bool = True
 
     from mcap.reader import make_reader
 
-    from appliance.recorder import unfinished_files
+    from appliance.recording.recorder import unfinished_files
 
     log = logging.getLogger("ogiflow.recovery")
     reports = []

@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
-from appliance.sdnotify import SdNotifier, Watchdog
+from appliance.runtime.sdnotify import SdNotifier, Watchdog
 
 __all__ = [
     "HealthMonitor",
@@ -118,7 +118,7 @@ class HealthSnapshot:
     stalled: bool = False
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain dict for JSON (``appliance.schemas.HEALTH``)."""
+        """Plain dict for JSON (``appliance.recording.schemas.HEALTH``)."""
         return asdict(self)
 
 
@@ -301,7 +301,7 @@ class HealthReporter:
 
 def mcap_sink(recorder: Any, topic: str = "/health") -> Callable[[HealthSnapshot], None]:
     """Sink recording each snapshot as ``ogiflow.Health`` JSON through ``recorder.record``."""
-    from appliance.schemas import HEALTH, encode_json
+    from appliance.recording.schemas import HEALTH, encode_json
 
     def sink(snap: HealthSnapshot) -> None:
         recorder.record(topic, HEALTH, encode_json(HEALTH, snap.to_dict()), snap.t_wall_ns)
@@ -311,7 +311,7 @@ def mcap_sink(recorder: Any, topic: str = "/health") -> Callable[[HealthSnapshot
 
 def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
     """Sink pushing each snapshot's numbers to the live view (``health/...`` plots)."""
-    from appliance.live import health_scalars
+    from appliance.live.view import health_scalars
 
     def sink(snap: HealthSnapshot) -> None:
         view.push(health_scalars(snap))

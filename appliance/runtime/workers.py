@@ -113,7 +113,7 @@ def worker_main(
     ----------
     worker_id : int
         Index of this worker (for the health counters).
-    ring_handle : appliance.ring.RingHandle
+    ring_handle : appliance.runtime.ring.RingHandle
         Shared-memory ring to attach to.
     results : multiprocessing.Queue
         Where :class:`WorkerResult` objects go.
@@ -122,8 +122,8 @@ def worker_main(
     geometry, params
         Stereo geometry and chain parameters (see :mod:`processing.chain`).
     """
-    from appliance.ring import PairRing
-    from appliance.tuning import keep_freed_memory
+    from appliance.runtime.ring import PairRing
+    from appliance.runtime.tuning import keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()

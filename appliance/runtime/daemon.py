@@ -31,10 +31,11 @@ from typing import Any
 
 import numpy as np
 
-from appliance import schemas
 from appliance.config import Config
-from appliance.pipeline import WorkerResult, worker_main
-from appliance.results import ResultPublisher, StereoStamper
+from appliance.recording import schemas
+from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.stamping import StereoStamper
+from appliance.runtime.workers import WorkerResult, worker_main
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -106,7 +107,7 @@ class Appliance:
 
     def _simulated_scene(self, wind_camera: tuple[float, float, float]) -> Path | None:
         """Render (once) and return the scene folder when a camera is simulated."""
-        from appliance.simscene import SceneTruth, ensure_scene
+        from appliance.runtime.simsite import SceneTruth, ensure_scene
 
         cams = (self.cfg.cameras.left, self.cfg.cameras.right)
         if not any(c.backend == "simulated" and "source" not in c.options for c in cams):
@@ -289,7 +290,7 @@ class Appliance:
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
-        from appliance.health import (
+        from appliance.runtime.health import (
             HealthMonitor,
             HealthReporter,
             disk_free_source,
@@ -297,7 +298,7 @@ class Appliance:
             log_sink,
             mcap_sink,
         )
-        from appliance.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+        from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 
         cfg = self.cfg
         self.health = HealthMonitor(cfg.health.stall_s)
@@ -332,8 +333,8 @@ class Appliance:
         self._workers_done = threading.Event()
         try:
             if cfg.recording.enabled:
-                from appliance.mcap_recovery import recover_unfinished
-                from appliance.recorder import Recorder, file_metadata
+                from appliance.recording.recorder import Recorder, file_metadata
+                from appliance.recording.recovery import recover_unfinished
 
                 cfg.recording.dir.mkdir(parents=True, exist_ok=True)
                 for rep in recover_unfinished(cfg.recording.dir):
@@ -344,7 +345,7 @@ class Appliance:
                 metadata.update(processing_metadata(self.geometry, params))
                 self.recorder = Recorder(cfg.recording, metadata).start()
             if cfg.live.mode != "off":
-                from appliance.live import LiveView
+                from appliance.live.view import LiveView
 
                 self.live = LiveView(cfg.live).start()
                 self.live_url = getattr(self.live, "url", None)
@@ -353,7 +354,7 @@ class Appliance:
                 wind_at=self.history.at,
                 truth_for=self._truth_for if self.truth is not None else None)
 
-            from appliance.ring import PairRing
+            from appliance.runtime.ring import PairRing
 
             w, h = self.geometry.image_size
             self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)

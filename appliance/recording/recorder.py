@@ -43,7 +43,7 @@ from mcap.writer import CompressionType, Writer
 
 from appliance import __version__
 from appliance.config import Config, RecordingConfig, config_to_yaml
-from appliance.schemas import MessageSchema
+from appliance.recording.schemas import MessageSchema
 
 __all__ = [
     "FILE_PATTERN",
@@ -264,7 +264,7 @@ class Recorder:
         Parameters
         ----------
         topic
-            Channel topic, e.g. ``/cam/left/raw`` (see :data:`appliance.schemas.TOPICS`).
+            Channel topic, e.g. ``/cam/left/raw`` (see :data:`appliance.recording.schemas.TOPICS`).
         schema
             Its schema; registered once per file on first use.
         payload

@@ -1,0 +1,1 @@
+"""Cores of the evaluation and benchmark commands and their shared figures."""

@@ -1,0 +1,1 @@
+"""The Rerun live view: viewer thread, viewer server process, blueprint and colour maps."""
