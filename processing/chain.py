@@ -101,6 +101,28 @@ class StereoGeometry:
             curve_right=radio.right if radio is not None else None,
         )
 
+    @classmethod
+    def from_synthetic_camera(cls, cam: Mapping[str, Any]) -> StereoGeometry:
+        """Geometry of a synthetic sequence's ideal, rectified camera pair.
+
+        ``cam`` is the ``camera`` entry of a sequence's ``meta.json`` (``s_px``, ``cx_px``,
+        ``cy_px``, ``b_m``, ``width``, ``height``, optional ``k1``/``k2``).
+
+        Raises
+        ------
+        ValueError
+            When the cameras have lens distortion: the frames then need the calibration
+            file the simulator writes, not this ideal geometry.
+        """
+        if cam.get("k1", 0.0) or cam.get("k2", 0.0):
+            raise ValueError(
+                f"the synthetic cameras have lens distortion (k1={cam.get('k1')}, "
+                f"k2={cam.get('k2')}); use the matching calibration file instead")
+        return cls(camera_constant=float(cam["s_px"]),
+                   principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
+                   baseline=float(cam["b_m"]),
+                   image_size=(int(cam["width"]), int(cam["height"])))
+
 
 @dataclass(frozen=True)
 class ChainParameters:

@@ -130,16 +130,10 @@ def chain_parameters(disparity_init: str, d0: float, sgm_range: int) -> Any:
 def _geometry(meta: dict[str, Any]) -> Any:
     from processing.chain import StereoGeometry
 
-    cam = meta["camera"]
-    if cam.get("k1", 0.0) or cam.get("k2", 0.0):
-        raise ValueError(f"sequence {meta['name']!r} has lens distortion (k1={cam.get('k1')}, "
-                         f"k2={cam.get('k2')}); the evaluation expects ideal cameras")
-    return StereoGeometry(
-        camera_constant=float(cam["s_px"]),
-        principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
-        baseline=float(cam["b_m"]),
-        image_size=(int(cam["width"]), int(cam["height"])),
-    )
+    try:
+        return StereoGeometry.from_synthetic_camera(meta["camera"])
+    except ValueError as exc:
+        raise ValueError(f"sequence {meta['name']!r}: {exc}") from None
 
 
 def frame_metrics(velocity: Any, valid: Any, gas_mask: Any, u_sf: Any, u_sf_valid: Any,

@@ -122,11 +122,7 @@ class Appliance:
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.truth is not None:
-            cam = self.truth.camera
-            return StereoGeometry(camera_constant=float(cam["s_px"]),
-                                  principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
-                                  baseline=float(cam["b_m"]),
-                                  image_size=(int(cam["width"]), int(cam["height"])))
+            return StereoGeometry.from_synthetic_camera(self.truth.camera)
         raise ValueError(
             "calibration: a stereo calibration file is required for real cameras "
             "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
