@@ -18,6 +18,7 @@ import sys
 from collections.abc import Sequence
 
 from appliance import __version__
+from appliance.exitcodes import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
 
 #: Modules that each register one subcommand (or one member of a group such as ``eval``).
 COMMAND_MODULES: tuple[str, ...] = (
@@ -35,10 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.replay",
 )
 
-EXIT_OK = 0
-EXIT_FAILURE = 1
-EXIT_USAGE = 2
-EXIT_INTERRUPTED = 130
+__all__ = ["EXIT_FAILURE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "CommandError", "main"]
 
 
 class CommandError(Exception):

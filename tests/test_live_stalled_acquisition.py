@@ -19,7 +19,8 @@ from mcap.reader import make_reader
 from appliance.config import Config, LiveConfig, RecordingConfig
 from appliance.live.view import LiveFrame, LiveView
 from appliance.recording import schemas as S
-from appliance.recording.recorder import Recorder, closed_files, file_metadata
+from appliance.recording.metadata import file_metadata
+from appliance.recording.recorder import Recorder, closed_files
 from appliance.runtime.health import HealthMonitor, HealthReporter, live_sink, log_sink, mcap_sink
 from appliance.runtime.ring import PairRing
 

@@ -16,7 +16,8 @@ from mcap.stream_reader import StreamReader
 
 from appliance.config import Config, RecordingConfig, load_config
 from appliance.recording import schemas as S
-from appliance.recording.recorder import Recorder, closed_files, file_metadata, unfinished_files
+from appliance.recording.metadata import file_metadata
+from appliance.recording.recorder import Recorder, closed_files, unfinished_files
 
 
 def _rc(tmp_path: Path, **kw: object) -> RecordingConfig:

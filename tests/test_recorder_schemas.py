@@ -16,7 +16,8 @@ from google.protobuf import descriptor_pb2
 
 from appliance.config import Config, RecordingConfig
 from appliance.recording import schemas as S
-from appliance.recording.recorder import Recorder, closed_files, file_metadata
+from appliance.recording.metadata import file_metadata
+from appliance.recording.recorder import Recorder, closed_files
 
 
 def test_raw_image_round_trip_all_dtypes() -> None:

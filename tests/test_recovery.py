@@ -30,7 +30,8 @@ CHILD = textwrap.dedent("""
     import numpy as np
     from appliance.recording import schemas as S
     from appliance.config import Config, RecordingConfig
-    from appliance.recording.recorder import Recorder, file_metadata
+    from appliance.recording.metadata import file_metadata
+    from appliance.recording.recorder import Recorder
     rc = dataclasses.replace(RecordingConfig(), dir=Path(sys.argv[1]), chunk_kb=16,
                              fsync_s=0.05, quota_gb=None)
     rec = Recorder(rc, file_metadata(Config(), "cal: 1\\n")).start()

@@ -43,9 +43,9 @@ def run(args: argparse.Namespace) -> int:
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be positive, got {args.duration}")
     cfg = config_from_args(args)
-    appliance = Appliance(cfg, duration_s=args.duration)
+    appliance = Appliance(cfg, duration_s=args.duration, announce=True)
     try:
-        code = appliance.run_with_banner()
+        code = appliance.run()
     except LiveViewError as exc:
         raise CommandError(str(exc)) from exc
     return code

@@ -42,7 +42,7 @@ from typing import IO, Any
 from mcap.writer import CompressionType, Writer
 
 from appliance import __version__
-from appliance.config import Config, RecordingConfig, config_to_yaml
+from appliance.config import RecordingConfig
 from appliance.recording.schemas import MessageSchema
 
 __all__ = [
@@ -50,7 +50,6 @@ __all__ = [
     "Recorder",
     "RecorderStats",
     "closed_files",
-    "file_metadata",
     "unfinished_files",
 ]
 
@@ -92,23 +91,6 @@ def unfinished_files(directory: Path) -> list[Path]:
     found = [p for p in directory.iterdir() if FILE_PATTERN.match(p.name)
              and p.name.endswith(".active") and p.is_file()]
     return sorted(found, key=_file_key)
-
-
-def file_metadata(cfg: Config, calibration_text: str | None = None) -> dict[str, dict[str, str]]:
-    """Metadata records for every file: the effective config and the calibration.
-
-    Parameters
-    ----------
-    cfg
-        The validated configuration; stored as YAML text (``config`` record, key ``yaml``).
-    calibration_text
-        The calibration file's text, if any (``calibration`` record, keys ``path``, ``yaml``).
-    """
-    cal_path = str(cfg.calibration) if cfg.calibration is not None else ""
-    return {
-        "config": {"yaml": config_to_yaml(cfg)},
-        "calibration": {"path": cal_path, "yaml": calibration_text or ""},
-    }
 
 
 @dataclass

@@ -1,4 +1,5 @@
-"""The gas scene of the simulated cameras: simulated once, cached on disk, looped.
+"""The simulated site: the gas scene of the simulated cameras, the simulated anemometer's
+wind that blows it, and the simulator's ground truth.
 
 The default configuration runs the appliance with two simulated cameras and a simulated
 anemometer. The cameras show a synthetic plume (processing.synthetic, Stable Fluids with
@@ -9,7 +10,8 @@ steal the pipeline's CPU: the scene is rendered once per set of parameters into 
 folder (``ogiflow-synthetic/1`` format) and the simulated cameras loop over it.
 
 The ground truth of every frame is kept beside the images, so the daemon can put the
-simulator's true mean gas velocity next to the measured one.
+simulator's true mean gas velocity next to the measured one. :class:`SimulatedSite` bundles
+all of this for the daemon.
 """
 
 from __future__ import annotations
@@ -23,13 +25,20 @@ from pathlib import Path
 
 import numpy as np
 
-from appliance.config import SimulationConfig
+from appliance.config import CameraConfig, Config, SimulationConfig
 from appliance.progress import ProgressBar
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
 SCENE_VERSION = 1
+#: Mean wind of the simulated anemometer when the config gives none, in Gill axes (U toward
+#: the north mark, V to its left, W up): with the default mounting (north mark along the
+#: optical axis) this is 1.5 m/s to the camera's right and 0.3 m/s away from it, a wind the
+#: stereo system sees mostly in the image plane, as in the paper's field test.
+SIMULATED_MEAN_WIND = (0.3, -1.5, 0.0)
+#: Wind that blows the simulated plume when the anemometer is real: 1.5 m/s to the right.
+DEFAULT_SCENE_WIND = (1.5, 0.0, 0.0)
 
 
 def cache_root(configured: Path | None) -> Path:
@@ -114,3 +123,92 @@ class SceneTruth:
         if i >= self.n_frames - 2:
             return None  # (n-2, n-1, 0) and (n-1, 0, 1) wrap around the loop
         return self._means[i]
+
+
+class SimulatedSite:
+    """Everything the default configuration simulates, for the daemon.
+
+    The simulated cameras loop over one rendered scene whose plume is blown by the mean
+    wind of the simulated anemometer (rotated into the camera frame by the site mounting),
+    so the measured gas velocity can be compared with the anemometer and with the
+    simulator's ground truth.
+
+    Parameters
+    ----------
+    cfg : Config
+        The validated configuration.
+    rotation : ndarray, shape (3, 3)
+        Anemometer-to-camera rotation of the site mounting.
+    """
+
+    def __init__(self, cfg: Config, rotation: np.ndarray) -> None:
+        self.cfg = cfg
+        self.wind_camera_m_s = self._scene_wind(rotation)
+        self.folder: Path | None = None
+        self.truth: SceneTruth | None = None
+
+    @staticmethod
+    def renders_scene(cfg: Config) -> bool:
+        """True when a simulated camera needs the rendered scene (no explicit source)."""
+        return any(c.backend == "simulated" and "source" not in c.options
+                   for c in (cfg.cameras.left, cfg.cameras.right))
+
+    def _scene_wind(self, rotation: np.ndarray) -> tuple[float, float, float]:
+        a = self.cfg.anemometer
+        if a.backend != "simulated":
+            return DEFAULT_SCENE_WIND
+        sensor = np.asarray(a.options.get("mean_wind", SIMULATED_MEAN_WIND), dtype=np.float64)
+        v = rotation @ sensor
+        return (float(v[0]), float(v[1]), float(v[2]))
+
+    def prepare(self) -> None:
+        """Render (once; cached) the scene and load its ground truth, when needed."""
+        if self.renders_scene(self.cfg):
+            self.folder = ensure_scene(self.cfg.simulation, self.wind_camera_m_s)
+            self.truth = SceneTruth(self.folder)
+
+    def chain_defaults(self, camera_constant_px: float, baseline_m: float) -> dict[str, object]:
+        """Chain parameters the rendered scene needs (the config may override them).
+
+        The synthetic scene has no jitter and a featureless background (the paper's ideal
+        conditions): registration could only lock onto the gas. The minimum disparity d0 is
+        that of twice the plume distance.
+        """
+        if self.folder is None:
+            return {}
+        return {"register": False,
+                "d0": camera_constant_px * baseline_m / (2.0 * self.cfg.simulation.distance_m)}
+
+    def camera_options(self, side: str, cam: CameraConfig) -> dict[str, object]:
+        """Options of a camera back end, with the simulated camera's site defaults."""
+        options = dict(cam.options)
+        if cam.backend == "simulated":
+            options.setdefault("side", side)
+            options.setdefault("fps", cam.frame_rate_hz)
+            if self.folder is not None:
+                options.setdefault("source", str(self.folder))
+            # The two cameras are not triggered together (paper Sec. 4.1).
+            options.setdefault("phase_s", 0.0 if side == "left" else 0.004)
+            options.setdefault("seed", 1 if side == "left" else 2)
+        return options
+
+    def anemometer_options(self) -> dict[str, object]:
+        """Options of the anemometer back end, with the simulated anemometer's mean wind."""
+        a = self.cfg.anemometer
+        options = dict(a.options)
+        if a.backend == "simulated":
+            options.setdefault("mean_wind", SIMULATED_MEAN_WIND)
+        return options
+
+    def true_velocity(self, frame_id0: int | None, frame_id2: int | None) -> np.ndarray | None:
+        """Ground-truth mean gas velocity (m/s, camera frame) of a raw triple.
+
+        ``frame_id0``/``frame_id2`` are the scene frame numbers of the triple's first and
+        last left frames; None when the triple is not three consecutive scene frames (a
+        dropped frame) or there is no rendered scene.
+        """
+        if self.truth is None or frame_id0 is None or frame_id2 is None:
+            return None
+        if frame_id2 - frame_id0 != 2:
+            return None
+        return self.truth.mean_velocity(frame_id0)

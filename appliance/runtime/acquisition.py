@@ -1,0 +1,190 @@
+"""Acquisition: camera threads, stamping and pairing into the ring, raw wind recording.
+
+Camera threads record every raw frame and hand it to the pairing thread through a
+bounded queue (which drops and counts when full, which it never is in normal operation);
+the pairing thread stamps frames (a clock model per camera), pairs them and writes pairs
+into the shared-memory ring, which overwrites the oldest slot instead of waiting. Nothing
+here ever waits for processing, the live view or an alarm sink.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from appliance.config import Config
+from appliance.recording import schemas
+from appliance.runtime.simsite import SimulatedSite
+from appliance.runtime.stamping import SIDES, StereoStamper
+
+log = logging.getLogger("ogiflow")
+
+
+class Acquisition:
+    """The acquisition threads' shared state and loops.
+
+    Parameters
+    ----------
+    cfg : Config
+    counters : object
+        The daemon's counters (``frames``, ``pairs``, ``wind_samples``, ... attributes).
+    health : HealthMonitor
+    stop_event : threading.Event
+        Set when the daemon stops.
+    wall_ns : callable
+        Host monotonic ns -> UNIX ns.
+    site : SimulatedSite
+        Simulated camera/anemometer defaults.
+    recorder, publisher, ring, watchdog
+        Where frames, pairs and wind samples go (recorder may be None).
+    """
+
+    def __init__(self, cfg: Config, counters: Any, health: Any, stop_event: threading.Event,
+                 wall_ns: Callable[[int], int], site: SimulatedSite, *, recorder: Any,
+                 publisher: Any, ring: Any, watchdog: Any) -> None:
+        self.cfg = cfg
+        self.counters = counters
+        self.health = health
+        self.stop_event = stop_event
+        self.wall_ns = wall_ns
+        self.site = site
+        self.recorder = recorder
+        self.publisher = publisher
+        self.ring = ring
+        self.watchdog = watchdog
+        self.unpaired = {s: 0 for s in SIDES}
+        self._frame_q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=512)
+        self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
+            collections.OrderedDict())
+        self._pair_lock = threading.Lock()
+
+    def frame_ids(self, *pair_indices: int) -> list[int | None]:
+        """Device frame numbers of the left frames of recent pairs (None when unknown)."""
+        with self._pair_lock:
+            return [self._pair_frame_ids.get(i) for i in pair_indices]
+
+    def make_camera(self, side: str) -> Any:
+        from drivers.camera.registry import create_camera
+
+        cam_cfg = getattr(self.cfg.cameras, side)
+        return create_camera(cam_cfg.backend, **self.site.camera_options(side, cam_cfg))
+
+    def camera_loop(self, side: str) -> None:
+        """Grab frames of one camera forever; reconnect with back-off when it vanishes."""
+        from drivers.camera import mcap_format
+        from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
+
+        backoff = 0.5
+        stream = self.health.stream(f"cam/{side}")
+        cache: dict[str, schemas.MessageSchema] = {}
+        while not self.stop_event.is_set():
+            camera = None
+            try:
+                camera = self.make_camera(side)
+                camera.open()
+                camera.start()
+                backoff = 0.5
+                while not self.stop_event.is_set():
+                    try:
+                        frame = camera.grab(timeout=0.5)
+                    except CameraTimeout:
+                        self.counters.camera_timeouts += 1
+                        continue
+                    stream.tick()
+                    if self.watchdog is not None:
+                        self.watchdog.frame_arrived()
+                    self.counters.frames[side] += 1
+                    if self.recorder is not None:
+                        for m in mcap_format.frame_to_messages(side, frame,
+                                                               self.wall_ns(frame.host_ns)):
+                            schema = cache.get(m.schema_name)
+                            if schema is None:
+                                schema = schemas.MessageSchema(m.schema_name, m.schema_encoding,
+                                                               m.schema_data, m.message_encoding)
+                                cache[m.schema_name] = schema
+                            self.recorder.record(m.topic, schema, m.data, m.log_time,
+                                                 m.publish_time)
+                    try:
+                        self._frame_q.put_nowait((side, frame))
+                    except queue.Full:
+                        self.counters.frame_queue_drops += 1
+            except EndOfStream:
+                log.info("camera %s: end of stream", side)
+                return
+            except (CameraError, OSError, ValueError) as exc:
+                if self.stop_event.is_set():
+                    break
+                self.counters.camera_reconnects += 1
+                log.warning("camera %s: %s; reconnecting in %.1f s", side, exc, backoff)
+                self.stop_event.wait(backoff)
+                backoff = min(backoff * 2, 10.0)
+            finally:
+                if camera is not None:
+                    try:
+                        camera.close()
+                    except (CameraError, OSError):
+                        pass
+
+    def pairing_loop(self) -> None:
+        """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
+        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz, self.cfg.pairing.tolerance_s)
+        stream = self.health.stream("pairs")
+        index = 0
+        while True:
+            try:
+                side, frame = self._frame_q.get(timeout=0.05)
+            except queue.Empty:
+                if self.stop_event.is_set():
+                    break
+                pairs = stamper.poll(time.monotonic_ns())
+            else:
+                pairs = stamper.push(side, frame, time.monotonic_ns())
+            for p in pairs:
+                self._write_pair(index, p)
+                stream.tick()
+                index += 1
+        self.unpaired = stamper.unpaired()
+
+    def _write_pair(self, index: int, p: Any) -> None:
+        left, right = p.left, p.right
+        self.ring.write(left.image, right.image, pair_index=index, left_seq=left.seq,
+                        right_seq=right.seq, t_left_mono_ns=p.left_ns, t_right_mono_ns=p.right_ns,
+                        t_wall_ns=self.wall_ns(p.time_ns))
+        self.counters.pairs += 1
+        with self._pair_lock:
+            self._pair_frame_ids[index] = left.device_frame_id
+            while len(self._pair_frame_ids) > 4 * self.cfg.ring.capacity + 64:
+                self._pair_frame_ids.popitem(last=False)
+        self.publisher.record_pair(index, p)
+
+    def on_wind(self, sample: Any) -> None:
+        """Reader-thread callback: record the raw sample (never blocks)."""
+        self.counters.wind_samples += 1
+        self.health.stream("wind").tick()
+        self.publisher.record_json("/wind/raw", schemas.WIND_SAMPLE, {
+            "t_mono_ns": sample.host_ns, "t_wall_ns": self.wall_ns(sample.host_ns),
+            "t_device": sample.counter, "sensor": self.cfg.anemometer.protocol,
+            "u": _finite(sample.u), "v": _finite(sample.v), "w": _finite(sample.w),
+            "speed_of_sound_m_s": _finite_or_none(sample.speed_of_sound),
+            "sonic_temperature_c": _finite_or_none(sample.sonic_temperature),
+            "status": sample.status_code, "valid": bool(sample.valid),
+        }, sample.host_ns)
+
+
+def _finite(x: Any) -> float:
+    v = float(x)
+    return v if np.isfinite(v) else 0.0
+
+
+def _finite_or_none(x: Any) -> float | None:
+    if x is None:
+        return None
+    v = float(x)
+    return v if np.isfinite(v) else None
