@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from appliance import cli
-from appliance.commands.eval_footage import consecutive_runs
+from appliance.evaluation.footage import consecutive_runs
 
 
 def _write_set(folder: Path, numbers: list[int], *, seed: int = 0) -> None:

@@ -17,15 +17,13 @@ import numpy as np
 import pytest
 
 from appliance.config import LiveConfig
+from appliance.live.blueprint import blueprint
+from appliance.live.colour import disparity_bgr, flow_bgr, to_u8
 from appliance.live.view import (
     LiveFrame,
     LiveScalars,
     LiveView,
     LiveViewError,
-    _disparity_bgr,
-    _flow_bgr,
-    _to_u8,
-    blueprint,
     health_scalars,
 )
 from appliance.runtime.health import HealthMonitor
@@ -205,13 +203,17 @@ def test_off_mode_does_nothing() -> None:
 
 
 def test_display_conversions() -> None:
-    assert _to_u8(np.array([[0.0, 0.5, 1.5]])).tolist() == [[0, 128, 255]]
-    assert _to_u8(np.array([[True, False]])).tolist() == [[255, 0]]
-    assert _to_u8(np.array([[100, 300]], np.uint16)).tolist() == [[0, 255]]
+    assert to_u8(np.array([[0.0, 0.5, 1.5]])).tolist() == [[0, 128, 255]]
+    assert to_u8(np.array([[True, False]])).tolist() == [[255, 0]]
+    assert to_u8(np.array([[100, 300]], np.uint16)).tolist() == [[0, 255]]
     flow = np.zeros((4, 4, 2), np.float32)
     flow[0, 0] = (3.0, 0.0)
-    bgr = _flow_bgr(flow)
+    bgr = flow_bgr(flow)
     assert bgr.shape == (4, 4, 3) and bgr[1, 1].sum() == 0 and bgr[0, 0].max() == 255
+    assert flow_bgr(flow, max_magnitude=6.0)[0, 0].max() == 127  # half the fixed scale
+    assert flow_bgr(flow, max_magnitude=1.0)[0, 0].max() == 255  # saturates
+    flow[1, 1] = np.nan
+    assert flow_bgr(flow)[1, 1].sum() == 0  # NaN shows as no motion
     disp = np.array([[1.0, np.nan], [2.0, 3.0]])
-    out = _disparity_bgr(disp)
+    out = disparity_bgr(disp)
     assert out.shape == (2, 2, 3) and out[0, 1].sum() == 0

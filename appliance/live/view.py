@@ -8,11 +8,8 @@ item is dropped and counted. Images are encoded to JPEG in the live thread (not 
 
 Modes (``live.mode``):
 
-- ``serve``: starts the Rerun gRPC server and web viewer (the ``rerun`` CLI as a child
-  process, ``--serve-web --bind ADDRESS``) after checking both ports are free on the bind
-  address, then streams to it. ``rr.serve_grpc`` / ``rr.serve_web_viewer`` cannot be used
-  here: they always listen on every interface and do not report a busy port, while the
-  viewer must stay on 127.0.0.1 unless the site decides otherwise.
+- ``serve``: starts the Rerun gRPC server and web viewer (:mod:`appliance.live.server`, on
+  ``live.bind``), then streams to it.
 - ``connect``: streams to a viewer at ``live.url`` (``rr.connect_grpc``).
 - ``save``: writes an ``.rrd`` file (``rerun rrd verify`` checks it).
 - ``off``: nothing; :meth:`LiveView.push` is a no-op.
@@ -26,27 +23,21 @@ Entity paths: ``cam/left/diff``, ``cam/right/diff``, ``flow``, ``disparity``, ``
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import importlib.util
 import logging
-import os
 import queue
-import shutil
-import signal
-import socket
-import subprocess
 import threading
-import time
-import urllib.parse
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from appliance.config import LiveConfig
+from appliance.live import MAX_ARROWS
+from appliance.live.blueprint import blueprint
+from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, to_u8
+from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
 
 __all__ = [
     "LiveFrame",
@@ -54,9 +45,6 @@ __all__ = [
     "LiveStats",
     "LiveView",
     "LiveViewError",
-    "blueprint",
-    "check_port_free",
-    "encode_jpeg",
     "health_scalars",
 ]
 
@@ -67,11 +55,6 @@ GAS_COLOR = (230, 120, 20)
 WIND_COLOR = (30, 110, 230)
 #: Arrows show the displacement over this many seconds (velocity in m/s times this).
 ARROW_SCALE_S = 0.2
-MAX_ARROWS = 2000
-
-
-class LiveViewError(RuntimeError):
-    """The live view could not start (port busy, server did not come up)."""
 
 
 @dataclass
@@ -145,144 +128,6 @@ class LiveStats:
     url: str = ""
 
 
-# --------------------------------------------------------------------------- blueprint
-
-
-def blueprint() -> Any:
-    """The viewer layout: images and 3D velocity left, the Fig. 8 comparison and health right."""
-    import rerun.blueprint as rrb
-
-    images = rrb.Grid(
-        rrb.Spatial2DView(origin="cam/left/diff", name="left differential image"),
-        rrb.Spatial2DView(origin="cam/right/diff", name="right differential image"),
-        rrb.Spatial2DView(origin="flow", name="optical flow w_L"),
-        rrb.Spatial2DView(origin="disparity", name="disparity d_L"),
-        rrb.Spatial2DView(origin="gas/mask", name="gas mask"),
-        rrb.Spatial3DView(origin="gas/velocity3d", name="3D gas velocity V"),
-    )
-    plots = rrb.Vertical(
-        rrb.TimeSeriesView(origin="plots/speed", name="mean speed (m/s): gas vs wind"),
-        rrb.TimeSeriesView(origin="plots/angle/x", name="angle to X (deg)"),
-        rrb.TimeSeriesView(origin="plots/angle/y", name="angle to Y (deg)"),
-        rrb.TimeSeriesView(origin="plots/angle/z", name="angle to Z (deg)"),
-        rrb.TimeSeriesView(origin="health", name="health"),
-    )
-    # A live view follows the newest data on the pair-index timeline.
-    time_panel = rrb.TimePanel(timeline="frame", play_state="following")
-    return rrb.Blueprint(rrb.Horizontal(images, plots, column_shares=[3, 2]), time_panel,
-                         collapse_panels=True)
-
-
-# --------------------------------------------------------------------------- encoding
-
-
-def _to_u8(img: np.ndarray) -> np.ndarray:
-    """Display bytes: bool -> 0/255, float in [0, 1] -> x255, uint16 -> min-max stretched."""
-    a = np.asarray(img)
-    if a.dtype == np.bool_:
-        return a.astype(np.uint8) * 255
-    if a.dtype == np.uint8:
-        return a
-    if np.issubdtype(a.dtype, np.floating):
-        return (np.nan_to_num(np.clip(a, 0.0, 1.0)) * 255.0 + 0.5).astype(np.uint8)
-    lo, hi = float(a.min()), float(a.max())
-    scale = 255.0 / (hi - lo) if hi > lo else 0.0
-    return ((a.astype(np.float32) - lo) * scale).astype(np.uint8)
-
-
-def _flow_bgr(flow: np.ndarray) -> np.ndarray:
-    """Colour-coded flow: hue = direction, brightness = magnitude (relative to the maximum)."""
-    f = np.nan_to_num(np.asarray(flow, np.float32))
-    mag, ang = cv2.cartToPolar(f[..., 0], f[..., 1], angleInDegrees=True)
-    hsv = np.zeros((*f.shape[:2], 3), np.uint8)
-    hsv[..., 0] = (ang / 2).astype(np.uint8)
-    hsv[..., 1] = 255
-    top = float(mag.max())
-    hsv[..., 2] = (np.clip(mag / top, 0, 1) * 255).astype(np.uint8) if top > 0 else 0
-    return cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
-
-
-def _disparity_bgr(disp: np.ndarray) -> np.ndarray:
-    d = np.asarray(disp, np.float32)
-    ok = np.isfinite(d)
-    out = np.zeros(d.shape, np.uint8)
-    if ok.any():
-        lo, hi = float(d[ok].min()), float(d[ok].max())
-        out[ok] = ((d[ok] - lo) / (hi - lo) * 254 + 1).astype(np.uint8) if hi > lo else 128
-    bgr = cv2.applyColorMap(out, cv2.COLORMAP_TURBO)
-    bgr[~ok] = 0
-    return bgr
-
-
-def encode_jpeg(img: np.ndarray, quality: int) -> bytes:
-    """JPEG bytes of a (H, W) or (H, W, 3) BGR uint8 image."""
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
-    if not ok:
-        raise ValueError(f"JPEG encoding failed for an image of shape {img.shape}")
-    return buf.tobytes()
-
-
-# --------------------------------------------------------------------------- ports / server
-
-
-def check_port_free(host: str, port: int, what: str) -> None:
-    """Raise :class:`LiveViewError` naming the setting when ``host:port`` cannot be bound."""
-    family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    with socket.socket(family, socket.SOCK_STREAM) as s:
-        # Like the servers themselves: TIME_WAIT leftovers do not count as busy.
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind((host, port))
-        except OSError as exc:
-            raise LiveViewError(
-                f"live.{what} {port} on {host} is not available ({exc.strerror}); another "
-                f"program (or another ogiflow) uses it - stop it or choose another port with "
-                f"--set live.{what}=PORT") from None
-
-
-def _pdeathsig_hook() -> Any:
-    """A ``preexec_fn`` making the viewer server die with us (a leftover server would keep
-    the ports busy), or None where prctl is unavailable.
-
-    libc is loaded here, in the parent: the child, forked from a threaded process, only makes
-    the one system call before exec.
-    """
-    try:
-        prctl = ctypes.CDLL(None, use_errno=True).prctl
-    except (OSError, AttributeError):
-        return None
-
-    def hook() -> None:  # pragma: no cover - runs in the child between fork and exec
-        prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
-
-    return hook
-
-
-def _rerun_binary() -> str:
-    """The Rerun CLI binary shipped in rerun-sdk (run directly, not through ``python -m
-    rerun``, whose wrapper process would survive as the only one we can stop)."""
-    override = os.environ.get("RERUN_CLI_PATH")
-    if override:
-        return override
-    spec = importlib.util.find_spec("rerun_cli")
-    if spec is not None and spec.origin is not None:
-        path = Path(spec.origin).parent / "rerun"
-        if path.is_file():
-            return str(path)
-    found = shutil.which("rerun")
-    if found is None:
-        raise LiveViewError("the Rerun viewer binary (package rerun-sdk) was not found")
-    return found
-
-
-def _client_host(bind: str) -> str:
-    return {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(bind, bind)
-
-
-def _url_host(host: str) -> str:
-    return f"[{host}]" if ":" in host else host
-
-
 # --------------------------------------------------------------------------- the view
 
 _STOP = object()
@@ -307,7 +152,7 @@ class LiveView:
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._rec: Any = None
-        self._server: subprocess.Popen[bytes] | None = None
+        self._server: ViewerServer | None = None
         self._memory_limit = server_memory_limit
         self._styled: set[str] = set()
 
@@ -375,47 +220,16 @@ class LiveView:
         return self
 
     def _start_server(self) -> str:
-        bind, grpc_port, web_port = self.cfg.bind, self.cfg.grpc_port, self.cfg.web_port
-        check_port_free(bind, grpc_port, "grpc_port")
-        check_port_free(bind, web_port, "web_port")
-        cmd = [_rerun_binary(), "--serve-web", "--bind", bind,
-               "--port", str(grpc_port), "--web-viewer-port", str(web_port),
-               "--server-memory-limit", self._memory_limit]
-        self._server = subprocess.Popen(cmd, stdin=subprocess.DEVNULL,
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                        preexec_fn=_pdeathsig_hook())
-        host = _client_host(bind)
-        deadline = time.monotonic() + 30.0
-        while True:
-            if self._server.poll() is not None:
-                raise LiveViewError(f"the Rerun viewer server exited at start "
-                                    f"(code {self._server.returncode}): {' '.join(cmd)}")
-            try:
-                socket.create_connection((host, grpc_port), timeout=0.5).close()
-                break
-            except OSError:
-                if time.monotonic() > deadline:
-                    self._stop_server()
-                    raise LiveViewError(f"the Rerun viewer server did not listen on "
-                                        f"{host}:{grpc_port} within 30 s") from None
-                time.sleep(0.1)
-        grpc_url = f"rerun+http://{_url_host(host)}:{grpc_port}/proxy"
-        shown = _url_host(socket.gethostname() if bind in ("0.0.0.0", "::") else host)
-        view = f"rerun+http://{shown}:{grpc_port}/proxy"
-        self._stats.url = (f"http://{shown}:{web_port}/?url="
-                           f"{urllib.parse.quote(view, safe='')}")
-        return grpc_url
+        cfg = self.cfg
+        self._server = start_viewer_server(cfg.bind, cfg.grpc_port, cfg.web_port,
+                                           self._memory_limit)
+        self._stats.url = self._server.view_url
+        return self._server.grpc_url
 
     def _stop_server(self) -> None:
         srv, self._server = self._server, None
-        if srv is None:
-            return
-        srv.terminate()
-        try:
-            srv.wait(5)
-        except subprocess.TimeoutExpired:
-            srv.kill()
-            srv.wait(5)
+        if srv is not None:
+            srv.stop()
 
     def close(self, timeout: float = 3.0) -> bool:
         """Stop the thread and the sink. Returns False when the thread was stuck in Rerun
@@ -502,15 +316,15 @@ class LiveView:
 
         self._set_time(f.frame, f.t_capture_ns)
         if f.diff_left is not None:
-            self._image("cam/left/diff", _to_u8(f.diff_left))
+            self._image("cam/left/diff", to_u8(f.diff_left))
         if f.diff_right is not None:
-            self._image("cam/right/diff", _to_u8(f.diff_right))
+            self._image("cam/right/diff", to_u8(f.diff_right))
         if f.flow is not None:
-            self._image("flow", _flow_bgr(f.flow))
+            self._image("flow", flow_bgr(f.flow))
         if f.disparity is not None:
-            self._image("disparity", _disparity_bgr(f.disparity))
+            self._image("disparity", disparity_bgr(f.disparity))
         if f.gas_mask is not None:
-            self._image("gas/mask", _to_u8(np.asarray(f.gas_mask, bool)))
+            self._image("gas/mask", to_u8(np.asarray(f.gas_mask, bool)))
         if f.points3d is not None and f.velocity3d is not None:
             pts = np.asarray(f.points3d, np.float32).reshape(-1, 3)
             vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)

@@ -21,10 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from appliance.live import MAX_ARROWS
 from processing.chain import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
-
-#: Points of the 3D velocity field sent for the live view (subsampled gas pixels).
-MAX_ARROWS = 400
 
 
 @dataclass
