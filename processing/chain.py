@@ -26,6 +26,7 @@ images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timesta
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -200,13 +201,18 @@ class ChainParameters:
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> ChainParameters:
-        """Build from a config mapping; an unknown key raises ValueError naming it."""
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - names)
+        """Build from a config mapping; an unknown key raises ValueError naming it (with the
+        nearest known name for a near miss, e.g. ``alhpa`` -> ``alpha``)."""
+        names = sorted(f.name for f in dataclasses.fields(cls))
+        unknown = sorted(set(values) - set(names))
         if unknown:
+            hints = []
+            for key in unknown:
+                near = difflib.get_close_matches(str(key), names, n=1)
+                hints.append(f"{key!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
             raise ValueError(
-                f"unknown processing parameter(s) {', '.join(unknown)}; "
-                f"known: {', '.join(sorted(names))}"
+                f"unknown processing parameter(s) {', '.join(hints)}; "
+                f"known: {', '.join(names)}"
             )
         return cls(**dict(values))
 
