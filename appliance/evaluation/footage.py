@@ -245,6 +245,7 @@ def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str |
                 timings["flow"].append((t2 - t1) * 1e3)
                 timings["segmentation"].append((t3 - t2) * 1e3)
                 shift01, prev_n = pre.shifts[1], n
+                mag = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
                 per_frame.append({
                     "frame": n,
                     "gas_fraction": float(seg.mask.mean()),
@@ -252,7 +253,7 @@ def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str |
                     "activity_ratio": float(seg.activity_ratio),
                     "shift01_px": [round(v, 4) for v in pre.shifts[0]],
                     "shift12_px": [round(v, 4) for v in pre.shifts[1]],
-                    "flow_median_px": float(np.median(np.hypot(flow[..., 0], flow[..., 1]))),
+                    "flow_median_px": float(np.median(mag)),
                 })
                 if name == figure_set and figure_frame in (None, n):
                     key = seg.activity_ratio if seg.mask.any() else -1.0
