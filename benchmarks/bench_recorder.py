@@ -2,6 +2,9 @@
 
 Run from the repository root: PYTHONPATH=. python benchmarks/bench_recorder.py [--pairs N]
 
+Frames are encoded as the daemon's camera threads encode them (``schemas.frame_records``:
+RawImage + frame info per frame, by ``drivers.camera.mcap_format``), in the producer loop.
+
 1. Unpaced: N pairs of noisy 320x240 uint16 frames as fast as the producer can serialize
    them; reports the writer's pairs/s (after warm-up) and its ratio to the 30 pairs/s needed.
 2. Paced at 2 x 30 Hz for the same N pairs: reports drops and the queue's peak depth against
@@ -21,29 +24,38 @@ import numpy as np
 from appliance.config import RecordingConfig
 from appliance.recording import schemas as S
 from appliance.recording.recorder import Recorder, closed_files
+from drivers.camera.base import Frame
+
+#: Messages per camera frame: RawImage + frame info.
+MESSAGES_PER_FRAME = 2
 
 
-def _frames(n: int) -> list[bytes]:
+def _frames(n: int) -> list[Frame]:
     rng = np.random.default_rng(0)
     base = rng.integers(7000, 9000, (240, 320), dtype=np.uint16)
-    return [S.raw_image(base + rng.integers(0, 64, (240, 320), dtype=np.uint16), i, "cam")
-            for i in range(n)]
+    return [Frame(image=base + rng.integers(0, 64, (240, 320), dtype=np.uint16),
+                  pixel_format="Mono16", host_ns=i, seq=i) for i in range(n)]
 
 
-def run(pairs: int, paced: bool, frames: list[bytes]) -> dict[str, float]:
+def _record(rec: Recorder, side: str, frame: Frame, t: int) -> None:
+    for r in S.frame_records(side, frame, t):
+        rec.record(r.topic, r.schema, r.payload, r.log_time_ns, r.publish_time_ns)
+
+
+def run(pairs: int, paced: bool, frames: list[Frame]) -> dict[str, float]:
     with tempfile.TemporaryDirectory() as d:
         rc = dataclasses.replace(RecordingConfig(), dir=Path(d), quota_gb=None)
         rec = Recorder(rc).start()
         # warm-up: first file, schema registration, zstd context
         for i in range(10):
-            rec.record("/cam/left/raw", S.RAW_IMAGE, frames[i % len(frames)], i)
+            _record(rec, "left", frames[i % len(frames)], i)
         while rec.stats().queue_depth:
             time.sleep(0.01)
         w0 = rec.stats().messages_written
         t0 = time.perf_counter()
         for i in range(pairs):
-            rec.record("/cam/left/raw", S.RAW_IMAGE, frames[i % len(frames)], i)
-            rec.record("/cam/right/raw", S.RAW_IMAGE, frames[(i + 1) % len(frames)], i)
+            _record(rec, "left", frames[i % len(frames)], i)
+            _record(rec, "right", frames[(i + 1) % len(frames)], i)
             if paced:
                 time.sleep(max(0.0, t0 + (i + 1) / 30 - time.perf_counter()))
         while rec.stats().queue_depth:
@@ -52,8 +64,9 @@ def run(pairs: int, paced: bool, frames: list[bytes]) -> dict[str, float]:
         st = rec.stats()
         rec.close()
         size = sum(p.stat().st_size for p in closed_files(Path(d)))
-        raw = (st.messages_written) * 240 * 320 * 2
-        return {"pairs_per_s": (st.messages_written - w0) / 2 / elapsed,
+        raw = st.messages_written / MESSAGES_PER_FRAME * 240 * 320 * 2
+        per_pair = 2 * MESSAGES_PER_FRAME
+        return {"pairs_per_s": (st.messages_written - w0) / per_pair / elapsed,
                 "drops": st.messages_dropped, "queue_peak": st.queue_peak,
                 "queue_capacity": rc.queue_size, "ratio_vs_raw": size / raw}
 

@@ -23,6 +23,7 @@ from appliance.recording.metadata import file_metadata
 from appliance.recording.recorder import Recorder, closed_files
 from appliance.runtime.health import HealthMonitor, HealthReporter, live_sink, log_sink, mcap_sink
 from appliance.runtime.ring import PairRing
+from drivers.camera.base import Frame
 
 PAIRS = 300
 
@@ -44,15 +45,17 @@ def test_stalled_viewer_does_not_stall_acquisition_or_recording(
     ring = PairRing.create(8, (240, 320))
     rng = np.random.default_rng(0)
     frames = [rng.integers(0, 65535, (240, 320), dtype=np.uint16) for _ in range(4)]
-    raw = [S.raw_image(f, 0, "cam") for f in frames]
     left_c, right_c = monitor.stream("cam/left"), monitor.stream("cam/right")
     done = threading.Event()
 
     def acquisition() -> None:
         for i in range(PAIRS):
             t = 1_700_000_000_000_000_000 + i * 33_333_333
-            recorder.record("/cam/left/raw", S.RAW_IMAGE, raw[i % 4], t)
-            recorder.record("/cam/right/raw", S.RAW_IMAGE, raw[(i + 1) % 4], t)
+            for side, image in (("left", frames[i % 4]), ("right", frames[(i + 1) % 4])):
+                frame = Frame(image=image, pixel_format="Mono16", host_ns=t, seq=i)
+                for r in S.frame_records(side, frame, t):  # as the camera threads record
+                    recorder.record(r.topic, r.schema, r.payload, r.log_time_ns,
+                                    r.publish_time_ns)
             left_c.tick()
             right_c.tick()
             pair = {"pair_index": i, "left_seq": i, "right_seq": i, "t_left_mono_ns": t,
@@ -98,7 +101,8 @@ def test_stalled_viewer_does_not_stall_acquisition_or_recording(
         with open(path, "rb") as f:
             for _, channel, _ in make_reader(f).iter_messages():
                 counts[channel.topic] = counts.get(channel.topic, 0) + 1
-    assert counts["/cam/left/raw"] == counts["/cam/right/raw"] == PAIRS  # 0 frames lost
+    assert counts["/camera/left/image"] == counts["/camera/right/image"] == PAIRS  # none lost
+    assert counts["/camera/left/frame_info"] == counts["/camera/right/frame_info"] == PAIRS
     assert counts["/pairs"] == PAIRS
     assert counts["/health"] >= 1
     # every window end 2..PAIRS-1 was either processed or reported as skipped

@@ -18,6 +18,8 @@ from appliance.config import Config, RecordingConfig, load_config
 from appliance.recording import schemas as S
 from appliance.recording.metadata import file_metadata
 from appliance.recording.recorder import Recorder, closed_files, unfinished_files
+from drivers.camera.base import Frame
+from drivers.camera.mcap_format import decode_image
 
 
 def _rc(tmp_path: Path, **kw: object) -> RecordingConfig:
@@ -26,10 +28,21 @@ def _rc(tmp_path: Path, **kw: object) -> RecordingConfig:
     return dataclasses.replace(RecordingConfig(), **base)  # type: ignore[arg-type]
 
 
-def _frame(i: int, shape: tuple[int, int] = (240, 320)) -> bytes:
+def _frame(i: int, side: str = "left", shape: tuple[int, int] = (240, 320)) -> list[S.Record]:
+    """Camera frame i (counter in pixel (0, 0)) as the daemon records it: image + frame_info."""
     img = np.random.default_rng(i).integers(0, 65535, shape, dtype=np.uint16)
     img[0, 0] = i
-    return S.raw_image(img, 1_700_000_000_000_000_000 + i, "cam_left")
+    frame = Frame(image=img, pixel_format="Mono16", host_ns=1_000 + i, seq=i)
+    return S.frame_records(side, frame, 1_700_000_000_000_000_000 + i)
+
+
+def _record(rec: Recorder, records: list[S.Record]) -> bool:
+    return all([rec.record(r.topic, r.schema, r.payload, r.log_time_ns, r.publish_time_ns)
+                for r in records])
+
+
+def _counter(image_payload: bytes) -> int:
+    return int(decode_image(image_payload)[0][0, 0])
 
 
 def _wind(i: int) -> bytes:
@@ -63,19 +76,21 @@ def test_records_every_message_with_metadata(tmp_path: Path) -> None:
     cal = "camera_matrix_left: [[400, 0, 160], [0, 400, 120], [0, 0, 1]]\n"
     rec = Recorder(_rc(tmp_path), file_metadata(cfg, cal)).start()
     for i in range(20):
-        assert rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), 10 + i)
-        assert rec.record("/cam/right/raw", S.RAW_IMAGE, _frame(100 + i), 10 + i)
+        assert _record(rec, _frame(i))
+        assert _record(rec, _frame(100 + i, "right"))
         assert rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), 10 + i, 5 + i)
     assert rec.close()
     (path,) = closed_files(tmp_path / "rec")
     assert unfinished_files(tmp_path / "rec") == []
     msgs, meta, summary = _read_all(path)
-    assert len(msgs) == 60
-    left = [d for t, d in msgs if t == "/cam/left/raw"]
-    assert [int(S.raw_image_to_array(d)[0][0, 0]) for d in left] == list(range(20))
-    assert {t for t, _ in msgs} == {"/cam/left/raw", "/cam/right/raw", "/wind/raw"}
-    # schemas registered once per file: two distinct schemas for three channels
-    assert len(summary.schemas) == 2 and len(summary.channels) == 3
+    assert len(msgs) == 100
+    left = [d for t, d in msgs if t == "/camera/left/image"]
+    assert [_counter(d) for d in left] == list(range(20))
+    assert {t for t, _ in msgs} == {"/camera/left/image", "/camera/left/frame_info",
+                                    "/camera/right/image", "/camera/right/frame_info",
+                                    "/wind/raw"}
+    # schemas registered once per file: three distinct schemas for five channels
+    assert len(summary.schemas) == 3 and len(summary.channels) == 5
     assert summary.chunk_indexes[0].compression == "zstd"
     assert meta["recording"]["software"] == "ogiflow"
     assert {"host", "software_version", "start_time_utc"} <= set(meta["recording"])
@@ -83,13 +98,13 @@ def test_records_every_message_with_metadata(tmp_path: Path) -> None:
     assert "rotate_mb" in meta["config"]["yaml"]
     assert meta["calibration"]["yaml"] == cal
     st = rec.stats()
-    assert (st.messages_written, st.messages_dropped, st.files_closed) == (60, 0, 1)
+    assert (st.messages_written, st.messages_dropped, st.files_closed) == (100, 0, 1)
 
 
 def test_rotation_by_size_reregisters_channels(tmp_path: Path) -> None:
     rec = Recorder(_rc(tmp_path, rotate_mb=0.4, chunk_kb=64), {"config": {"yaml": "x"}}).start()
     for i in range(40):
-        rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), i)
+        _record(rec, _frame(i))
         rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
         time.sleep(0.002)
     rec.close()
@@ -100,11 +115,12 @@ def test_rotation_by_size_reregisters_channels(tmp_path: Path) -> None:
     for path in files:
         msgs, meta, summary = _read_all(path)
         assert meta["config"] == {"yaml": "x"} and "recording" in meta
-        assert {c.topic for c in summary.channels.values()} <= {"/cam/left/raw", "/wind/raw"}
+        assert {c.topic for c in summary.channels.values()} <= {
+            "/camera/left/image", "/camera/left/frame_info", "/wind/raw"}
         assert path.stat().st_size < 0.4e6 + 2 * 64 * 1024 + 200_000
         total += len(msgs)
-        seen += [int(S.raw_image_to_array(d)[0][0, 0]) for t, d in msgs if t == "/cam/left/raw"]
-    assert total == 80
+        seen += [_counter(d) for t, d in msgs if t == "/camera/left/image"]
+    assert total == 120
     assert seen == list(range(40))  # order kept across files
 
 
@@ -142,7 +158,7 @@ def test_quota_deletes_oldest_closed_files_only(tmp_path: Path) -> None:
 def test_quota_applies_after_rotation(tmp_path: Path) -> None:
     rec = Recorder(_rc(tmp_path, quota_gb=0.0012, rotate_mb=0.5, chunk_kb=64)).start()
     for i in range(60):
-        rec.record("/cam/left/raw", S.RAW_IMAGE, _frame(i), i)
+        _record(rec, _frame(i))
         time.sleep(0.002)
     rec.close()
     st = rec.stats()
@@ -213,12 +229,12 @@ def test_default_queue_never_fills_at_stereo_rate(tmp_path: Path) -> None:
     frames = [_frame(i) for i in range(4)]
     start = time.monotonic()
     for i in range(30):
-        rec.record("/cam/left/raw", S.RAW_IMAGE, frames[i % 4], i)
-        rec.record("/cam/right/raw", S.RAW_IMAGE, frames[(i + 1) % 4], i)
+        _record(rec, frames[i % 4])
+        _record(rec, frames[(i + 1) % 4])
         time.sleep(max(0.0, start + (i + 1) / 30 - time.monotonic()))
     rec.close()
     st = rec.stats()
-    assert st.messages_dropped == 0 and st.messages_written == 60
+    assert st.messages_dropped == 0 and st.messages_written == 120
     assert st.queue_peak < RecordingConfig().queue_size // 10
 
 

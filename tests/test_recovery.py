@@ -21,6 +21,8 @@ from appliance import cli
 from appliance.recording import schemas as S
 from appliance.recording.recorder import unfinished_files
 from appliance.recording.recovery import default_output, recover, recover_unfinished
+from drivers.camera.base import Frame
+from drivers.camera.mcap_format import decode_image
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,6 +34,7 @@ CHILD = textwrap.dedent("""
     from appliance.config import Config, RecordingConfig
     from appliance.recording.metadata import file_metadata
     from appliance.recording.recorder import Recorder
+    from drivers.camera.base import Frame
     rc = dataclasses.replace(RecordingConfig(), dir=Path(sys.argv[1]), chunk_kb=16,
                              fsync_s=0.05, quota_gb=None)
     rec = Recorder(rc, file_metadata(Config(), "cal: 1\\n")).start()
@@ -40,7 +43,9 @@ CHILD = textwrap.dedent("""
     while True:
         img = rng.integers(0, 65535, (32, 32), dtype=np.uint16)
         img[0, 0] = i
-        rec.record("/cam/left/raw", S.RAW_IMAGE, S.raw_image(img, i, "cam_left"), i)
+        frame = Frame(image=img, pixel_format="Mono16", host_ns=i, seq=i)
+        for r in S.frame_records("left", frame, i):  # as the daemon records frames
+            rec.record(r.topic, r.schema, r.payload, r.log_time_ns, r.publish_time_ns)
         i += 1
         if i % 20 == 0:
             print(i, flush=True)
@@ -106,14 +111,15 @@ def test_recover_after_sigkill_keeps_all_but_the_last_chunk(cut_file: tuple[Path
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics.message_count == messages_on_disk
-        counters = [int(S.raw_image_to_array(m.data)[0][0, 0]) for _, _, m in
-                    reader.iter_messages()]
+        counters = [int(decode_image(m.data)[0][0, 0]) for _, ch, m in
+                    reader.iter_messages() if ch.topic == "/camera/left/image"]
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert counters == list(range(len(counters)))  # a gap-free prefix
     assert meta["calibration"]["yaml"] == "cal: 1\n"
-    # What is lost: the open chunk (~8 messages of 2 KiB in 16 KiB) and what was still queued.
-    msgs_per_chunk = messages_on_disk / chunks_on_disk
-    assert len(counters) >= last_printed - 3 * msgs_per_chunk - 20
+    # What is lost: the open chunk (~7 frames of 2 KiB + frame info in 16 KiB) and what was
+    # still queued.
+    frames_per_chunk = messages_on_disk / chunks_on_disk / 2  # image + frame_info per frame
+    assert len(counters) >= last_printed - 3 * frames_per_chunk - 20
 
 
 def test_recover_cli_on_active_file_writes_mcap_beside_it(cut_file: tuple[Path, int],
@@ -145,7 +151,8 @@ def _complete_file(path: Path, n: int = 50) -> None:
         cid = w.register_channel("/x", "protobuf", sid)
         for i in range(n):
             img = np.full((16, 16), i, np.uint16)
-            w.add_message(cid, i, S.raw_image(img, i, "x"), i)
+            frame = Frame(image=img, pixel_format="Mono16", host_ns=i, seq=i)
+            w.add_message(cid, i, S.frame_records("left", frame, i)[0].payload, i)
         w.finish()
 
 

@@ -5,11 +5,14 @@ Two kinds:
 - Foxglove well-known schemas (protobuf, from ``foxglove-schemas-protobuf``) where one fits:
   ``foxglove.RawImage`` for raw 16-bit frames, ``foxglove.CompressedImage`` for JPEG/PNG
   images, ``foxglove.Grid`` for float fields (flow, disparity, velocity). Foxglove and
-  ``rerun mcap convert`` open them as they are.
+  ``rerun mcap convert`` open them as they are. Camera frames (RawImage plus
+  ``ogiflow.FrameInfo``) are encoded by :mod:`drivers.camera.mcap_format`, the one owner of
+  that encoding (the MCAP replay camera decodes it there, and ``drivers`` cannot import
+  ``appliance``); :func:`frame_records` hands its messages to the recorder.
 - Our own documented JSON schemas (schema encoding ``jsonschema``, message encoding ``json``)
   for wind samples, wind in the camera frame, stereo pairs, per-frame scene-flow summaries and
-  health snapshots. The JSON Schema text is stored in every file's schema record, so a file
-  documents itself.
+  health snapshots, defined and checked in :mod:`appliance.recording.jsonschemas` and
+  re-exported here.
 
 Times: ``*_mono_ns`` is the host's ``time.monotonic_ns()`` at arrival (what pairing uses);
 ``*_wall_ns`` is UNIX time in ns for humans; MCAP ``log_time`` is wall-clock ns at recording.
@@ -22,22 +25,30 @@ Camera frame: the left camera's, X right, Y down, Z forward (metres, m/s). Direc
 
 from __future__ import annotations
 
-import json
-import math
-from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
 from foxglove_schemas_protobuf.Grid_pb2 import Grid
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
-from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
-from google.protobuf import descriptor_pb2
-from google.protobuf.descriptor import FileDescriptor
+
+from appliance.recording.jsonschemas import (
+    HEALTH,
+    SCENEFLOW_SUMMARY,
+    STEREO_PAIR,
+    WIND_CAMERA,
+    WIND_SAMPLE,
+    decode_json,
+    encode_json,
+    validate_json,
+)
+from appliance.recording.message import MessageSchema, Record
+from drivers.camera import mcap_format
+from drivers.camera.base import Frame
 
 __all__ = [
     "COMPRESSED_IMAGE",
+    "FRAME_INFO",
     "GRID",
     "HEALTH",
     "RAW_IMAGE",
@@ -47,128 +58,61 @@ __all__ = [
     "WIND_CAMERA",
     "WIND_SAMPLE",
     "MessageSchema",
+    "Record",
     "compressed_image",
     "decode_json",
     "encode_json",
+    "frame_records",
     "grid",
     "grid_to_array",
-    "raw_image",
-    "raw_image_to_array",
     "validate_json",
 ]
-
-
-@dataclass(frozen=True)
-class MessageSchema:
-    """One schema as stored in an MCAP schema record, plus its channels' message encoding.
-
-    Attributes
-    ----------
-    name
-        Schema name (``foxglove.RawImage``, ``ogiflow.WindSample``).
-    encoding
-        MCAP schema encoding: ``protobuf`` (a serialized FileDescriptorSet) or ``jsonschema``.
-    data
-        Schema bytes as written to the file.
-    message_encoding
-        Encoding of the messages on channels of this schema: ``protobuf`` or ``json``.
-    """
-
-    name: str
-    encoding: str
-    data: bytes
-    message_encoding: str
-
-    @property
-    def json_schema(self) -> dict[str, Any]:
-        """The JSON Schema as a dict (JSON schemas only)."""
-        if self.encoding != "jsonschema":
-            raise TypeError(f"{self.name} is not a JSON schema")
-        return json.loads(self.data)
-
 
 # --------------------------------------------------------------------------- protobuf
 
 
-def _file_descriptor_set(file: FileDescriptor) -> bytes:
-    """Serialized FileDescriptorSet of ``file`` and everything it imports (dependencies first)."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    seen: set[str] = set()
-
-    def add(fd: FileDescriptor) -> None:
-        if fd.name in seen:
-            return
-        for dep in fd.dependencies:
-            add(dep)
-        seen.add(fd.name)
-        fd.CopyToProto(fds.file.add())
-
-    add(file)
-    return fds.SerializeToString()
-
-
 def _proto_schema(message_class: Any) -> MessageSchema:
     desc = message_class.DESCRIPTOR
-    return MessageSchema(desc.full_name, "protobuf", _file_descriptor_set(desc.file), "protobuf")
+    # The same FileDescriptorSet builder as the camera frames, so equal schemas are equal bytes.
+    data = mcap_format._file_descriptor_set(desc)
+    return MessageSchema(desc.full_name, "protobuf", data, "protobuf")
 
 
-#: 16-bit (or 8-bit) raw camera frames.
-RAW_IMAGE = _proto_schema(RawImage)
+#: 16-bit (or 8-bit) raw camera frames, as :func:`drivers.camera.mcap_format.frame_to_messages`
+#: writes them.
+RAW_IMAGE = MessageSchema(mcap_format.IMAGE_SCHEMA_NAME, "protobuf",
+                          mcap_format.IMAGE_SCHEMA_DATA, "protobuf")
+#: Timing and device metadata of each camera frame (beside its RawImage).
+FRAME_INFO = MessageSchema(mcap_format.FRAME_INFO_SCHEMA_NAME, "jsonschema",
+                           mcap_format.FRAME_INFO_SCHEMA_DATA, "json")
 #: JPEG/PNG images (differential images, masks, visualisations).
 COMPRESSED_IMAGE = _proto_schema(CompressedImage)
 #: Float fields on the pixel grid: flow (u, v), disparity, disparity change, velocity.
 GRID = _proto_schema(Grid)
 
-_RAW_ENCODINGS = {
-    (np.dtype(np.uint8), 1): "mono8",
-    (np.dtype(np.uint16), 1): "mono16",
-    (np.dtype(np.float32), 1): "32FC1",
-}
+
+_FRAME_SCHEMAS = {RAW_IMAGE.name: RAW_IMAGE, FRAME_INFO.name: FRAME_INFO}
+
+
+def frame_records(side: str, frame: Frame, wall_ns: int) -> list[Record]:
+    """One camera frame as the recorder's messages: ``/camera/<side>/image`` (RawImage) and
+    ``/camera/<side>/frame_info``, encoded by :func:`drivers.camera.mcap_format.frame_to_messages`.
+
+    Parameters
+    ----------
+    side
+        ``left`` or ``right``.
+    frame
+        The frame as the camera delivered it ((H, W) uint16 or uint8 counts).
+    wall_ns
+        Wall-clock capture time, UNIX ns (MCAP log time); ``frame.host_ns`` is the publish time.
+    """
+    return [Record(m.topic, _FRAME_SCHEMAS[m.schema_name], m.data, m.log_time, m.publish_time)
+            for m in mcap_format.frame_to_messages(side, frame, wall_ns)]
 
 
 def _set_stamp(msg: Any, stamp_ns: int) -> None:
     msg.timestamp.seconds, msg.timestamp.nanos = divmod(int(stamp_ns), 1_000_000_000)
-
-
-def raw_image(image: np.ndarray, stamp_ns: int, frame_id: str) -> bytes:
-    """Serialize a frame as ``foxglove.RawImage``.
-
-    Parameters
-    ----------
-    image
-        (H, W) uint16 (``mono16``), uint8 (``mono8``) or float32 (``32FC1``), little-endian.
-    stamp_ns
-        Capture time, UNIX ns.
-    frame_id
-        Camera frame name, e.g. ``cam_left``.
-    """
-    image = np.asarray(image)
-    if image.ndim != 2:
-        raise ValueError(f"raw_image expects a (H, W) array, got shape {image.shape}")
-    dtype = image.dtype.newbyteorder("=") if image.dtype.byteorder == ">" else image.dtype
-    key = (np.dtype(dtype), 1)
-    if key not in _RAW_ENCODINGS:
-        raise ValueError(f"raw_image: unsupported dtype {image.dtype} (uint8, uint16, float32)")
-    data = np.ascontiguousarray(image, dtype=np.dtype(dtype).newbyteorder("<"))
-    msg = RawImage(frame_id=frame_id, width=image.shape[1], height=image.shape[0],
-                   encoding=_RAW_ENCODINGS[key], step=data.strides[0], data=data.tobytes())
-    _set_stamp(msg, stamp_ns)
-    return msg.SerializeToString()
-
-
-def raw_image_to_array(payload: bytes) -> tuple[np.ndarray, int, str]:
-    """Decode a ``foxglove.RawImage`` written by :func:`raw_image`: (image, stamp_ns, frame_id)."""
-    msg = RawImage()
-    msg.ParseFromString(payload)
-    dtypes = {"mono8": "<u1", "mono16": "<u2", "32FC1": "<f4"}
-    if msg.encoding not in dtypes:
-        raise ValueError(f"unsupported RawImage encoding {msg.encoding!r}")
-    dtype = np.dtype(dtypes[msg.encoding])
-    rows = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.step)
-    image = rows[:, : msg.width * dtype.itemsize].copy().view(dtype).reshape(msg.height,
-                                                                              msg.width)
-    stamp = msg.timestamp.seconds * 1_000_000_000 + msg.timestamp.nanos
-    return image.astype(dtype.newbyteorder("=")), stamp, msg.frame_id
 
 
 def compressed_image(data: bytes, stamp_ns: int, frame_id: str, fmt: str = "jpeg") -> bytes:
@@ -224,162 +168,13 @@ def grid_to_array(payload: bytes) -> tuple[np.ndarray, tuple[str, ...], int]:
     return arr, tuple(f.name for f in msg.fields), stamp
 
 
-# --------------------------------------------------------------------------- JSON schemas
-
-_INT = {"type": "integer"}
-_NUM = {"type": "number"}
-_NUM_OR_NULL = {"type": ["number", "null"]}
-_INT_OR_NULL = {"type": ["integer", "null"]}
-_VEC3 = {"type": "array", "items": _NUM, "minItems": 3, "maxItems": 3}
-_VEC3_OR_NULL = {"type": ["array", "null"], "items": _NUM, "minItems": 3, "maxItems": 3}
-_TIMES = {
-    "t_mono_ns": {**_INT, "description": "host time.monotonic_ns() at arrival"},
-    "t_wall_ns": {**_INT, "description": "host wall clock at arrival, UNIX ns"},
-}
-
-
-def _json_schema(name: str, title: str, description: str, properties: dict[str, Any],
-                 required: list[str]) -> MessageSchema:
-    doc = {
-        "$schema": "https://json-schema.org/draft/2020-12/schema",
-        "title": title,
-        "description": description,
-        "type": "object",
-        "properties": properties,
-        "required": required,
-        "additionalProperties": False,
-    }
-    return MessageSchema(name, "jsonschema", json.dumps(doc, indent=1).encode(), "json")
-
-
-WIND_SAMPLE = _json_schema(
-    "ogiflow.WindSample",
-    "Wind sample",
-    "One decoded anemometer sample in the sensor's own axes, as it arrived.",
-    {
-        **_TIMES,
-        "t_device": {**_NUM_OR_NULL,
-                     "description": "sensor's own time or counter if it sends one"},
-        "sensor": {"type": "string", "description": "protocol/back end, e.g. gill"},
-        "u": {**_NUM, "description": "wind along the sensor's x axis, m/s"},
-        "v": {**_NUM, "description": "wind along the sensor's y axis, m/s"},
-        "w": {**_NUM, "description": "wind along the sensor's z axis, m/s"},
-        "speed_of_sound_m_s": _NUM_OR_NULL,
-        "sonic_temperature_c": _NUM_OR_NULL,
-        "status": {"type": ["integer", "string", "null"],
-                   "description": "sensor status/diagnostic word (0 or 'OK' = good)"},
-        "valid": {"type": "boolean", "description": "false when the sensor flags the sample"},
-    },
-    ["t_mono_ns", "t_wall_ns", "sensor", "u", "v", "w", "valid"],
-)
-
-WIND_CAMERA = _json_schema(
-    "ogiflow.WindCamera",
-    "Wind in the camera frame",
-    "Anemometer wind rotated into the left camera frame (X right, Y down, Z forward) with the "
-    "site's mounting rotation, interpolated at a stereo pair's time.",
-    {
-        **_TIMES,
-        "pair_index": _INT_OR_NULL,
-        "velocity_m_s": {**_VEC3, "description": "(vx, vy, vz) m/s in the camera frame"},
-        "speed_m_s": {**_NUM, "minimum": 0},
-        "angles_deg": {**_VEC3_OR_NULL,
-                       "description": "directional angles to X, Y, Z (paper footnote 1); "
-                                      "null when the speed is 0"},
-        "interpolated": {"type": "boolean",
-                         "description": "true when interpolated between two samples"},
-    },
-    ["t_mono_ns", "t_wall_ns", "velocity_m_s", "speed_m_s", "angles_deg", "interpolated"],
-)
-
-STEREO_PAIR = _json_schema(
-    "ogiflow.StereoPair",
-    "Stereo pair",
-    "A left and a right frame paired by nearest arrival time within the tolerance.",
-    {
-        "pair_index": {**_INT, "minimum": 0},
-        "left_seq": {**_INT, "description": "left camera frame sequence number"},
-        "right_seq": {**_INT, "description": "right camera frame sequence number"},
-        "t_left_mono_ns": _INT,
-        "t_right_mono_ns": _INT,
-        "t_mono_ns": {**_INT, "description": "pair time (mean of both arrivals)"},
-        "t_wall_ns": _INT,
-        "dt_ns": {**_INT, "description": "t_right - t_left"},
-        "t_left_device_ns": _INT_OR_NULL,
-        "t_right_device_ns": _INT_OR_NULL,
-    },
-    ["pair_index", "left_seq", "right_seq", "t_left_mono_ns", "t_right_mono_ns", "t_mono_ns",
-     "t_wall_ns", "dt_ns"],
-)
-
-SCENEFLOW_SUMMARY = _json_schema(
-    "ogiflow.SceneFlowSummary",
-    "Scene-flow summary of one frame",
-    "Per-frame result of the scene-flow chain over the segmented gas region (paper Sec. 4). "
-    "When 'valid' is false the numbers must not be used; 'flags' says why.",
-    {
-        **_TIMES,
-        "pair_index": {**_INT, "description": "index of the middle pair t1 of (t0, t1, t2)"},
-        "gas_pixels": {**_INT, "minimum": 0, "description": "pixels in the gas mask (Eq. 9)"},
-        "mean_velocity_m_s": {**_VEC3_OR_NULL,
-                              "description": "mean 3D gas velocity (Eq. 4), camera frame"},
-        "speed_m_s": {**_NUM_OR_NULL, "minimum": 0},
-        "angles_deg": {**_VEC3_OR_NULL,
-                       "description": "directional angles to X, Y, Z (paper footnote 1)"},
-        "c_usf": {**_NUM_OR_NULL, "description": "frame quality c_USF (Eq. 8)"},
-        "latency_ms": {**_NUM_OR_NULL, "description": "arrival of t2 to result"},
-        "skipped_pairs": {**_INT, "minimum": 0,
-                          "description": "pairs skipped before this one (worker behind)"},
-        "valid": {"type": "boolean"},
-        "flags": {"type": "array", "items": {"type": "string"},
-                  "description": "quality flags, e.g. no_gas, low_quality"},
-    },
-    ["t_mono_ns", "t_wall_ns", "pair_index", "gas_pixels", "mean_velocity_m_s", "speed_m_s",
-     "angles_deg", "c_usf", "valid", "flags"],
-)
-
-_STREAM_STATS = {
-    "type": "object",
-    "properties": {
-        "count": {**_INT, "description": "items since start"},
-        "rate_hz": {**_NUM, "description": "items per second over the last interval"},
-        "drops": {**_INT, "description": "items lost or skipped since start"},
-        "last_age_s": {**_NUM_OR_NULL, "description": "seconds since the last item"},
-    },
-    "required": ["count", "rate_hz", "drops", "last_age_s"],
-    "additionalProperties": False,
-}
-_LATENCY_STATS = {
-    "type": "object",
-    "properties": {"count": _INT, "mean_ms": _NUM_OR_NULL, "max_ms": _NUM_OR_NULL},
-    "required": ["count", "mean_ms", "max_ms"],
-    "additionalProperties": False,
-}
-
-HEALTH = _json_schema(
-    "ogiflow.Health",
-    "Health snapshot",
-    "Periodic state of the appliance: per-stream rates and drops, latencies, counters "
-    "(unpaired frames, skipped pairs, serial errors, queue drops, ring overwrites), gauges "
-    "(ring occupancy, disk free) and whether acquisition is stalled.",
-    {
-        **_TIMES,
-        "uptime_s": _NUM,
-        "streams": {"type": "object", "additionalProperties": _STREAM_STATS},
-        "latencies": {"type": "object", "additionalProperties": _LATENCY_STATS},
-        "counters": {"type": "object", "additionalProperties": _INT},
-        "gauges": {"type": "object", "additionalProperties": _NUM_OR_NULL},
-        "stalled": {"type": "boolean", "description": "no new frame for health.stall_s"},
-    },
-    ["t_mono_ns", "t_wall_ns", "uptime_s", "streams", "latencies", "counters", "gauges",
-     "stalled"],
-)
-
 #: Topic -> schema of everything the appliance writes (one place for names and schemas).
 TOPICS: dict[str, MessageSchema] = {
-    # Raw frames: written by drivers.camera.mcap_format (image + frame_info per frame).
+    # Raw frames: encoded by drivers.camera.mcap_format (see frame_records).
     "/camera/left/image": RAW_IMAGE,
+    "/camera/left/frame_info": FRAME_INFO,
     "/camera/right/image": RAW_IMAGE,
+    "/camera/right/frame_info": FRAME_INFO,
     "/wind/raw": WIND_SAMPLE,
     "/wind/camera": WIND_CAMERA,
     "/pairs": STEREO_PAIR,
@@ -392,92 +187,3 @@ TOPICS: dict[str, MessageSchema] = {
     "/sceneflow/summary": SCENEFLOW_SUMMARY,
     "/health": HEALTH,
 }
-
-
-# --------------------------------------------------------------------------- JSON helpers
-
-_JSON_TYPES: dict[str, Any] = {
-    "object": Mapping, "array": (list, tuple), "string": str, "boolean": bool,
-    "null": type(None),
-}
-
-
-def _type_ok(value: Any, name: str) -> bool:
-    if name == "integer":
-        return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-    if name == "number":
-        return (isinstance(value, (int, float, np.integer, np.floating))
-                and not isinstance(value, bool) and math.isfinite(float(value)))
-    return isinstance(value, _JSON_TYPES[name])
-
-
-def _validate(value: Any, schema: Mapping[str, Any], path: str, errors: list[str]) -> None:
-    """The subset of JSON Schema our schemas use: type, properties, required,
-    additionalProperties, items, minItems/maxItems, minimum."""
-    types = schema.get("type")
-    if types is not None:
-        names = [types] if isinstance(types, str) else types
-        if not any(_type_ok(value, n) for n in names):
-            errors.append(f"{path}: expected {' or '.join(names)}, got {value!r:.60}")
-            return
-    if value is None:
-        return
-    if "minimum" in schema and isinstance(value, (int, float)) and value < schema["minimum"]:
-        errors.append(f"{path}: must be >= {schema['minimum']}, got {value!r}")
-    if isinstance(value, Mapping):
-        props = schema.get("properties", {})
-        for key in schema.get("required", []):
-            if key not in value:
-                errors.append(f"{path}.{key}: missing")
-        extra = schema.get("additionalProperties", True)
-        for key, item in value.items():
-            if key in props:
-                _validate(item, props[key], f"{path}.{key}", errors)
-            elif extra is False:
-                errors.append(f"{path}.{key}: not in the schema")
-            elif isinstance(extra, Mapping):
-                _validate(item, extra, f"{path}.{key}", errors)
-    elif isinstance(value, (list, tuple)):
-        if "minItems" in schema and len(value) < schema["minItems"]:
-            errors.append(f"{path}: needs at least {schema['minItems']} items")
-        if "maxItems" in schema and len(value) > schema["maxItems"]:
-            errors.append(f"{path}: takes at most {schema['maxItems']} items")
-        if "items" in schema:
-            for i, item in enumerate(value):
-                _validate(item, schema["items"], f"{path}[{i}]", errors)
-
-
-def validate_json(schema: MessageSchema, obj: Any) -> list[str]:
-    """Problems of ``obj`` against a JSON ``schema`` (empty list: valid)."""
-    errors: list[str] = []
-    _validate(obj, schema.json_schema, schema.name, errors)
-    return errors
-
-
-def _default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serializable: {type(value).__name__}")
-
-
-def encode_json(schema: MessageSchema, obj: Mapping[str, Any], validate: bool = True) -> bytes:
-    """Serialize one message of a JSON ``schema`` (compact UTF-8 JSON).
-
-    Raises
-    ------
-    ValueError
-        With ``validate``, when ``obj`` does not match the schema (naming the fields). Non-finite
-        numbers are refused either way: JSON has none (use null).
-    """
-    if validate:
-        errors = validate_json(schema, obj)
-        if errors:
-            raise ValueError("; ".join(errors))
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False, default=_default).encode()
-
-
-def decode_json(payload: bytes) -> Any:
-    """Parse one JSON message."""
-    return json.loads(payload)
