@@ -3,7 +3,7 @@
 A measurement engineer runs these on site: ``stereo`` with image pairs of a heated
 calibration target, ``radiometric`` with frames of a black body at known temperatures. Both
 write (or update) one calibration YAML that the appliance loads (see
-:mod:`processing.calibration.model` for the format).
+:mod:`processing.calibration.calfile` for the format).
 """
 
 from __future__ import annotations

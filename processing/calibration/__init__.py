@@ -10,6 +10,12 @@ Public API used by the rest of ogiflow::
     # s = calib.s_px, (cx, cy) = calib.cx_px, calib.cy_px, b = calib.b_m  (paper Eq. 4)
 """
 
+from processing.calibration.calfile import (
+    load_calibration,
+    load_radiometric,
+    save_calibration,
+    save_radiometric,
+)
 from processing.calibration.errors import (
     CalibrationError,
     CalibrationFileError,
@@ -24,10 +30,6 @@ from processing.calibration.model import (
     RadiometricCalibration,
     StereoCalibration,
     ideal_calibration,
-    load_calibration,
-    load_radiometric,
-    save_calibration,
-    save_radiometric,
 )
 from processing.calibration.pattern import PatternSpec, detect_pattern, object_points
 from processing.calibration.radiometric import (
