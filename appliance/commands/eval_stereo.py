@@ -1,22 +1,16 @@
 """``ogiflow eval stereo``: disparity accuracy on a rectified pair with ground truth.
 
-Runs our variational disparity (the joint solver of Eq. 6 on a static pair: the same
-images at t0 and t1 and zero flow, so d' = 0) and OpenCV StereoSGBM in the same run and
-reports the mean absolute error and the bad-pixel rate (error > 1 px) over the pixels
-with known ground truth (gt > 0).
+The argparse layer and the printed table; the evaluation is
+:func:`appliance.evaluation.stereo.evaluate_stereo` (its docstring says what is measured).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 from appliance import cli
-
-METHOD_VARIATIONAL = "variational"
-METHOD_SGBM = "sgbm"
 
 
 def register(root: argparse._SubParsersAction) -> None:
@@ -57,84 +51,6 @@ def register(root: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _read_grey(path: Path, what: str):
-    import cv2
-    import numpy as np
-
-    if not path.is_file():
-        raise ValueError(f"{what} image not found: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise ValueError(f"cannot read {what} image {path} (unknown or corrupt format)")
-    if img.dtype != np.uint8:
-        raise ValueError(f"{what} image {path} must be 8-bit, got {img.dtype}")
-    return img.astype(np.float32) / 255.0
-
-
-def _read_gt(path: Path, scale: float):
-    import cv2
-    import numpy as np
-
-    if not path.is_file():
-        raise ValueError(f"ground-truth image not found: {path}")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot read ground-truth image {path} (unknown or corrupt format)")
-    if raw.ndim != 2:
-        raise ValueError(f"ground-truth image {path} must be single-channel, got {raw.shape}")
-    return raw.astype(np.float32) / np.float32(scale)
-
-
-def evaluate(
-    left, right, gt, *, d0: float = 0.0, sgm_init: bool = False, max_disparity: int = 64
-) -> dict[str, dict[str, float]]:
-    """Scores of both methods on one pair (arrays already loaded; see the module doc).
-
-    Returns
-    -------
-    dict
-        {"variational": {"mae", "bad1", "ms"}, "sgbm": {"mae", "bad1", "valid", "ms"}}
-        with mae in px, bad1 and valid as fractions of the known ground-truth pixels.
-    """
-    import numpy as np
-
-    from processing.baselines import sgbm_disparity, sgbm_initial_disparity
-    from processing.disparity import joint_disparity
-
-    known = gt > 0
-    if not known.any():
-        raise ValueError("the ground truth has no known pixel (all values are 0)")
-    t = time.perf_counter()
-    d_sgbm, valid = sgbm_disparity(left, right, num_disparities=max_disparity)
-    ms_sgbm = (time.perf_counter() - t) * 1e3
-    init = None
-    if sgm_init:
-        init = sgbm_initial_disparity(left, right, num_disparities=max_disparity, fallback=d0)
-    zero = np.zeros((*left.shape, 2), np.float32)
-    # Warm-up on a tiny pair: the first call loads the compiled numba code from its cache,
-    # which must not count as run time.
-    tiny = np.zeros((16, 16), np.float32)
-    joint_disparity(tiny, tiny, tiny, tiny, np.zeros((16, 16, 2), np.float32))
-    t = time.perf_counter()
-    d_var, _ = joint_disparity(left, right, left, right, zero, d0=d0, initial_disparity=init)
-    ms_var = (time.perf_counter() - t) * 1e3
-
-    err_var = np.abs(d_var - gt)[known]
-    err_sgbm = np.abs(d_sgbm - gt)[known]
-    valid_k = valid[known]
-    bad_sgbm = (~valid_k) | (err_sgbm > 1.0)
-    return {
-        METHOD_VARIATIONAL: {"mae": float(err_var.mean()), "bad1": float(np.mean(err_var > 1.0)),
-                             "ms": ms_var},
-        METHOD_SGBM: {
-            "mae": float(err_sgbm[valid_k].mean()) if valid_k.any() else float("nan"),
-            "bad1": float(bad_sgbm.mean()),
-            "valid": float(valid_k.mean()),
-            "ms": ms_sgbm,
-        },
-    }
-
-
 def run(args: argparse.Namespace) -> int:
     """Evaluate both methods on the given pair and print a table (and JSON)."""
     if not args.gt_scale > 0:
@@ -142,13 +58,21 @@ def run(args: argparse.Namespace) -> int:
     if args.max_disparity <= 0 or args.max_disparity % 16:
         raise ValueError(f"--max-disparity must be a positive multiple of 16, "
                          f"got {args.max_disparity}")
-    left = _read_grey(args.left, "left")
-    right = _read_grey(args.right, "right")
-    gt = _read_gt(args.gt, args.gt_scale)
+    from appliance.evaluation.stereo import (
+        METHOD_SGBM,
+        METHOD_VARIATIONAL,
+        evaluate_stereo,
+        read_grey,
+        read_gt,
+    )
+
+    left = read_grey(args.left, "left")
+    right = read_grey(args.right, "right")
+    gt = read_gt(args.gt, args.gt_scale)
     if right.shape != left.shape or gt.shape != left.shape:
         raise ValueError(f"image sizes differ: left {left.shape[::-1]}, right "
                          f"{right.shape[::-1]}, gt {gt.shape[::-1]} (width, height)")
-    res = evaluate(left, right, gt, d0=args.d0, sgm_init=args.sgm_init,
+    res = evaluate_stereo(left, right, gt, d0=args.d0, sgm_init=args.sgm_init,
                    max_disparity=args.max_disparity)
     init = "SGBM estimate" if args.sgm_init else f"d0 = {args.d0:g} px"
     print(f"{args.left.name} / {args.right.name}: {left.shape[1]}x{left.shape[0]} px, "
