@@ -18,13 +18,18 @@ METHOD_VARIATIONAL = "variational"
 METHOD_SGBM = "sgbm"
 
 
-def read_grey(path: Path, what: str) -> np.ndarray:
-    """An 8-bit grey image as float32 in [0, 1] (colour is converted to grey)."""
+def _imread(path: Path, what: str, flags: int) -> np.ndarray:
     if not path.is_file():
         raise ValueError(f"{what} image not found: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    img = cv2.imread(str(path), flags)
     if img is None:
         raise ValueError(f"cannot read {what} image {path} (unknown or corrupt format)")
+    return img
+
+
+def read_grey(path: Path, what: str) -> np.ndarray:
+    """An 8-bit grey image as float32 in [0, 1] (colour is converted to grey)."""
+    img = _imread(path, what, cv2.IMREAD_GRAYSCALE)
     if img.dtype != np.uint8:
         raise ValueError(f"{what} image {path} must be 8-bit, got {img.dtype}")
     return img.astype(np.float32) / 255.0
@@ -32,11 +37,7 @@ def read_grey(path: Path, what: str) -> np.ndarray:
 
 def read_gt(path: Path, scale: float) -> np.ndarray:
     """A ground-truth disparity image in px: pixel value / ``scale``; 0 = unknown."""
-    if not path.is_file():
-        raise ValueError(f"ground-truth image not found: {path}")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise ValueError(f"cannot read ground-truth image {path} (unknown or corrupt format)")
+    raw = _imread(path, "ground-truth", cv2.IMREAD_UNCHANGED)
     if raw.ndim != 2:
         raise ValueError(f"ground-truth image {path} must be single-channel, got {raw.shape}")
     return raw.astype(np.float32) / np.float32(scale)
