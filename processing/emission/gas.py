@@ -16,7 +16,11 @@ lines saturate): the default holds for thin plumes (below about 10^4 ppm*m); cal
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
 
 #: Universal gas constant, J/(mol K).
 R_GAS = 8.314462618
@@ -91,3 +95,49 @@ def ppm_m_to_kg_m2(column_ppm_m: float | object, *, molar_mass_kg_mol: float,
 def g_s_to_kg_h(rate_g_s: float) -> float:
     """Mass flow rate in g/s to kg/h (x 3.6)."""
     return rate_g_s * 3.6
+
+
+#: Molar masses (kg/mol) of gases an OGI camera in 3.2-3.4 um sees, for ``--gas NAME``.
+MOLAR_MASS_KG_MOL = {"methane": 0.01604, "ethane": 0.03007, "propane": 0.04410,
+                     "butane": 0.05812}
+GAS_FILE_FORMAT = "ogiflow-gas"
+GAS_FILE_VERSION = 1
+
+
+def save_gas(path: str | os.PathLike[str], gas: GasProperties) -> None:
+    """Write a gas file (``format: ogiflow-gas``) that the appliance's config can name."""
+    data = {"format": GAS_FILE_FORMAT, "version": GAS_FILE_VERSION, "name": gas.name,
+            "molar_mass_kg_mol": gas.molar_mass_kg_mol,
+            "alpha_per_ppm_m": gas.alpha_per_ppm_m, "source": gas.source}
+    Path(path).write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+
+
+def load_gas(path: str | os.PathLike[str]) -> GasProperties:
+    """Read a gas file written by :func:`save_gas`.
+
+    Raises
+    ------
+    ValueError
+        Not a gas file, a missing or unknown key, or a bad value (named in the message).
+    """
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != GAS_FILE_FORMAT:
+        raise ValueError(f"{path}: not an ogiflow gas file (format: {GAS_FILE_FORMAT})")
+    if data.get("version") != GAS_FILE_VERSION:
+        raise ValueError(f"{path}: unsupported version {data.get('version')!r}")
+    keys = {"format", "version", "name", "molar_mass_kg_mol", "alpha_per_ppm_m", "source"}
+    unknown = sorted(set(data) - keys)
+    if unknown:
+        raise ValueError(f"{path}: unknown key(s) {', '.join(unknown)}")
+    try:
+        return GasProperties(name=str(data["name"]),
+                             molar_mass_kg_mol=float(data["molar_mass_kg_mol"]),
+                             alpha_per_ppm_m=float(data["alpha_per_ppm_m"]),
+                             source=str(data.get("source", "")))
+    except KeyError as exc:
+        raise ValueError(f"{path}: missing key {exc.args[0]}") from None
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
