@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.eval_flow",
     "appliance.commands.recover",
     "appliance.commands.calibrate",
+    "appliance.commands.calibrate_gascell",
     "appliance.commands.eval_footage",
     "appliance.commands.simulate",
     "appliance.commands.eval_stereo",

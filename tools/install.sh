@@ -16,8 +16,9 @@ if [ "$dev" = 1 ]; then
     # Cameras: Aravis library + typelib, its fake GigE Vision camera, what PyGObject (the
     # gige extra, built from source) compiles against; iproute2 (ip) for the fake cameras'
     # private network namespace.
+    # mosquitto: the MQTT broker the alarm tests publish to (127.0.0.1, a free port).
     apt_packages+=(systemd gir1.2-aravis-0.8 aravis-tools gcc libgirepository1.0-dev
-                   libcairo2-dev pkg-config iproute2)
+                   libcairo2-dev pkg-config iproute2 mosquitto)
 fi
 
 missing=()

@@ -1,0 +1,1 @@
+"""Alarm sinks: leak events, status and summaries for the plant's systems (MQTT)."""

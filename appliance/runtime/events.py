@@ -1,0 +1,312 @@
+"""Leak events: when a leak starts, is ongoing and ends, from per-frame evidence.
+
+Pure decision logic (no threads, no I/O) so that it runs the same in the daemon, in
+``ogiflow eval detection`` and in tests. A single frame's segmentation is not enough to
+say "leak" (noise, a warm object, the sky can all be segmented as gas): an event needs
+temporal evidence, in the spirit of continuous OGI monitoring products:
+
+- *presence*: enough gas pixels inside the watched zones (ignored zones removed);
+- *plume-like motion*: the flow inside the gas region is coherent (mean resultant length of
+  the flow directions, 0 = random, 1 = all parallel), as a plume carried by wind is;
+- *a fixed source*: the upstream end of the plume stays within ``max_source_shift_px`` of
+  the running median over the event's frames (a moving object drags its "source" along);
+- *persistence with hysteresis*: an event starts when the positive frames cover at least
+  ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
+  it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
+
+The event's start is back-dated to its first positive frame, its end to its last.
+"""
+
+from __future__ import annotations
+
+import collections
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+Polygon = Sequence[tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class EventConfig:
+    """Thresholds of the leak-event logic (config section ``events``).
+
+    Attributes
+    ----------
+    min_gas_pixels : int
+        Gas pixels inside the watched zones for a frame to count as positive.
+    min_coherence : float
+        Smallest flow coherence (0-1) of a positive frame.
+    min_rate_g_s : float
+        Smallest emission rate of a positive frame when the rate is known (0: any).
+    max_source_shift_px : float
+        Largest distance of a frame's source from the event's median source, px.
+    min_duration_s, start_window_s, start_fraction : float
+        Start rule (module docstring).
+    end_window_s, end_fraction : float
+        End rule (module docstring).
+    watch_zones, ignore_zones : tuple of polygons
+        Polygons in left-image pixel coordinates; no watch zone = the whole image.
+    """
+
+    min_gas_pixels: int = 150
+    min_coherence: float = 0.5
+    min_rate_g_s: float = 0.0
+    max_source_shift_px: float = 25.0
+    min_duration_s: float = 2.0
+    start_window_s: float = 3.0
+    start_fraction: float = 0.6
+    end_window_s: float = 6.0
+    end_fraction: float = 0.2
+    watch_zones: tuple[tuple[tuple[float, float], ...], ...] = ()
+    ignore_zones: tuple[tuple[tuple[float, float], ...], ...] = ()
+
+
+def zone_mask(shape: tuple[int, int], watch: Sequence[Polygon] = (),
+              ignore: Sequence[Polygon] = ()) -> np.ndarray:
+    """Pixels the event logic looks at: inside a watch zone (all when none) and no ignore zone.
+
+    Returns
+    -------
+    ndarray, shape ``shape``, bool
+    """
+    import cv2
+
+    h, w = shape
+    if watch:
+        m = np.zeros((h, w), np.uint8)
+        cv2.fillPoly(m, [np.round(np.asarray(p, np.float64)).astype(np.int32) for p in watch], 1)
+    else:
+        m = np.ones((h, w), np.uint8)
+    if ignore:
+        cv2.fillPoly(m, [np.round(np.asarray(p, np.float64)).astype(np.int32) for p in ignore],
+                     0)
+    return m.astype(bool)
+
+
+@dataclass(frozen=True)
+class FrameEvidence:
+    """What one processed frame says about a leak.
+
+    Attributes
+    ----------
+    t_s : float
+        Frame time, s (any monotonic origin).
+    frame : int
+        Frame or pair index (reports).
+    gas_pixels : int
+        Gas pixels inside the zones.
+    coherence : float
+        Mean resultant length of the flow directions over those pixels (0-1).
+    source_xy : (float, float) or None
+        Upstream end of the plume, px.
+    rate_g_s : float or None
+        Emission rate of the frame, when known.
+    velocity_m_s : (float, float, float) or None
+        Mean 3D gas velocity.
+    wind_m_s : (float, float, float) or None
+        Anemometer wind in the camera frame.
+    source_xyz_m : (float, float, float) or None
+        3D position of the source, m (camera frame).
+    """
+
+    t_s: float
+    frame: int
+    gas_pixels: int
+    coherence: float
+    source_xy: tuple[float, float] | None = None
+    rate_g_s: float | None = None
+    velocity_m_s: tuple[float, float, float] | None = None
+    wind_m_s: tuple[float, float, float] | None = None
+    source_xyz_m: tuple[float, float, float] | None = None
+
+
+def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
+                         zones: np.ndarray | None = None, **extra: object) -> FrameEvidence:
+    """Evidence of one frame from its gas mask (H, W) and image-plane flow (H, W, 2).
+
+    The source is the mean position of the 2 % most upstream gas pixels along the mean
+    flow direction; ``extra`` fills the optional fields of :class:`FrameEvidence`.
+    """
+    mask = np.asarray(gas_mask, bool)
+    if zones is not None:
+        mask = mask & zones
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return FrameEvidence(t_s, frame, 0, 0.0, **extra)  # type: ignore[arg-type]
+    f = np.asarray(flow, np.float64)[ys, xs]
+    mag = np.hypot(f[:, 0], f[:, 1])
+    moving = mag > 1e-3
+    if not moving.any():
+        return FrameEvidence(t_s, frame, len(xs), 0.0, **extra)  # type: ignore[arg-type]
+    unit = f[moving] / mag[moving, None]
+    resultant = unit.mean(axis=0)
+    coherence = float(np.hypot(*resultant))
+    d = resultant / max(coherence, 1e-12)
+    along = xs * d[0] + ys * d[1]
+    up = along <= np.percentile(along, 2.0)
+    source = (float(xs[up].mean()), float(ys[up].mean()))
+    return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
+                         **extra)
+
+
+@dataclass
+class LeakEvent:
+    """One leak event (what is reported over MQTT, recorded and shown)."""
+
+    id: int
+    start_t_s: float
+    start_frame: int
+    end_t_s: float | None = None
+    end_frame: int | None = None
+    end_reason: str = ""
+    source_xy: tuple[float, float] | None = None
+    source_xyz_m: tuple[float, float, float] | None = None
+    peak_rate_g_s: float | None = None
+    mean_rate_g_s: float | None = None
+    mean_velocity_m_s: tuple[float, float, float] | None = None
+    mean_wind_m_s: tuple[float, float, float] | None = None
+    confidence: float = 0.0
+    frames: int = 0
+    positive_frames: int = 0
+    _sources: list[tuple[float, float]] = field(default_factory=list, repr=False)
+    _rates: list[float] = field(default_factory=list, repr=False)
+    _velocities: list[tuple[float, float, float]] = field(default_factory=list, repr=False)
+    _winds: list[tuple[float, float, float]] = field(default_factory=list, repr=False)
+    _coherence: list[float] = field(default_factory=list, repr=False)
+
+    @property
+    def ongoing(self) -> bool:
+        return self.end_t_s is None
+
+    def duration_s(self, now_s: float) -> float:
+        return (self.end_t_s if self.end_t_s is not None else now_s) - self.start_t_s
+
+    def add(self, ev: FrameEvidence, positive: bool) -> None:
+        """Account one frame of the event (statistics over positive frames only)."""
+        self.frames += 1
+        if not positive:
+            return
+        self.positive_frames += 1
+        if ev.source_xy is not None:
+            self._sources.append(ev.source_xy)
+            self.source_xy = _median_point(self._sources)
+        if ev.source_xyz_m is not None:
+            self.source_xyz_m = ev.source_xyz_m
+        if ev.rate_g_s is not None:
+            self._rates.append(ev.rate_g_s)
+            self.peak_rate_g_s = max(self._rates)
+            self.mean_rate_g_s = float(np.mean(self._rates))
+        if ev.velocity_m_s is not None:
+            self._velocities.append(ev.velocity_m_s)
+            self.mean_velocity_m_s = _mean3(self._velocities)
+        if ev.wind_m_s is not None:
+            self._winds.append(ev.wind_m_s)
+            self.mean_wind_m_s = _mean3(self._winds)
+        self._coherence.append(ev.coherence)
+        self.confidence = float(self.positive_frames / self.frames * np.mean(self._coherence))
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-able view (no private lists)."""
+        return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
+
+
+def _median_point(points: Sequence[tuple[float, float]]) -> tuple[float, float]:
+    a = np.asarray(list(points)[-200:], np.float64)
+    return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
+
+
+def _mean3(vs: Sequence[tuple[float, float, float]]) -> tuple[float, float, float]:
+    m = np.mean(np.asarray(vs, np.float64), axis=0)
+    return float(m[0]), float(m[1]), float(m[2])
+
+
+class LeakDetector:
+    """The event state machine (module docstring); feed it frames in time order.
+
+    ``update`` returns the transitions the frame caused, as (kind, event) with kind
+    ``"start"``, ``"update"`` (every frame of an ongoing event) or ``"end"``.
+    """
+
+    def __init__(self, cfg: EventConfig | None = None) -> None:
+        self.cfg = cfg or EventConfig()
+        self._recent: collections.deque[tuple[float, int, bool]] = collections.deque()
+        self._ids = itertools.count(1)
+        self.current: LeakEvent | None = None
+        self.finished: list[LeakEvent] = []
+        self._candidate_sources: collections.deque[tuple[float, float]] = collections.deque(
+            maxlen=200)
+
+    def positive(self, ev: FrameEvidence) -> bool:
+        """Whether one frame, on its own, looks like a leak at the current source."""
+        c = self.cfg
+        if ev.gas_pixels < c.min_gas_pixels or ev.coherence < c.min_coherence:
+            return False
+        if ev.rate_g_s is not None and ev.rate_g_s < c.min_rate_g_s:
+            return False
+        ref = (self.current.source_xy if self.current is not None
+               else (_median_point(self._candidate_sources) if self._candidate_sources
+                     else None))
+        if ref is not None and ev.source_xy is not None:
+            if np.hypot(ev.source_xy[0] - ref[0], ev.source_xy[1] - ref[1]) > (
+                    c.max_source_shift_px):
+                return False
+        return True
+
+    def _fraction(self, now: float, window: float) -> tuple[float, float | None]:
+        """Positive fraction of the frames in (now - window, now] and the first positive t."""
+        items = [(t, p) for t, _, p in self._recent if t > now - window]
+        if not items:
+            return 0.0, None
+        first = next((t for t, p in items if p), None)
+        return sum(p for _, p in items) / len(items), first
+
+    def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
+        """Account one frame; return the transitions it caused."""
+        c = self.cfg
+        pos = self.positive(ev)
+        if pos and ev.source_xy is not None and self.current is None:
+            self._candidate_sources.append(ev.source_xy)
+        self._recent.append((ev.t_s, ev.frame, pos))
+        horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
+        while self._recent and self._recent[0][0] < ev.t_s - horizon:
+            self._recent.popleft()
+        out: list[tuple[str, LeakEvent]] = []
+        if self.current is None:
+            frac, first = self._fraction(ev.t_s, c.start_window_s)
+            if (first is not None and frac >= c.start_fraction
+                    and ev.t_s - first >= c.min_duration_s):
+                start_frame = next(f for t, f, p in self._recent if t == first and p)
+                self.current = LeakEvent(next(self._ids), first, start_frame)
+                self.current.add(ev, pos)
+                out.append(("start", self.current))
+            elif frac == 0.0:
+                self._candidate_sources.clear()  # nothing recent: forget the old candidate
+            return out
+        self.current.add(ev, pos)
+        frac, _ = self._fraction(ev.t_s, c.end_window_s)
+        if frac < c.end_fraction and ev.t_s - self.current.start_t_s >= c.end_window_s:
+            out.append(("end", self._close(ev, "gas gone")))
+        else:
+            out.append(("update", self.current))
+        return out
+
+    def _close(self, ev: FrameEvidence, reason: str) -> LeakEvent:
+        assert self.current is not None
+        last = [(t, f) for t, f, p in self._recent if p]
+        t_end, f_end = last[-1] if last else (ev.t_s, ev.frame)
+        event = self.current
+        event.end_t_s, event.end_frame, event.end_reason = t_end, f_end, reason
+        self.finished.append(event)
+        self.current = None
+        self._candidate_sources.clear()
+        return event
+
+    def close(self, t_s: float, frame: int, reason: str = "appliance stopped"
+              ) -> LeakEvent | None:
+        """End an ongoing event (shutdown, end of data); returns it, or None."""
+        if self.current is None:
+            return None
+        return self._close(FrameEvidence(t_s, frame, 0, 0.0), reason)

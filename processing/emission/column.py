@@ -1,0 +1,155 @@
+"""Column density of the gas from calibrated radiance (paper Eq. 1 inverted, Lambert-Beer).
+
+Eq. 1 with black-body background and gas, in radiance L (W m^-2 sr^-1, in-band):
+
+    L = L_bg tau + L_g (1 - tau),      tau = exp(-alpha_g CL)
+
+so, per pixel, with the background radiance L_bg that the pixel would see without gas and
+the radiance L_g of a black body at the gas temperature:
+
+    tau = (L - L_g) / (L_bg - L_g),    CL = -ln(tau) / alpha_g   [ppm*m].
+
+The inversion needs thermal contrast: where |L_bg - L_g| is small, tau is the ratio of two
+small, noisy numbers and CL is undefined. Such pixels are reported (``low_contrast``), not
+guessed. tau >= 1 (noise, or gas warmer than assumed) gives CL = 0; tau is floored at
+``tau_min`` (an opaque plume has no finite column density estimate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ColumnDensity:
+    """Result of :func:`column_density`.
+
+    Attributes
+    ----------
+    ppm_m : ndarray, shape (H, W), float32
+        Column density CL in ppm*m; 0 where undefined.
+    defined : ndarray, shape (H, W), bool
+        True where the thermal contrast allowed the inversion.
+    transmittance : ndarray, shape (H, W), float32
+        tau in [tau_min, 1]; 1 where undefined.
+    """
+
+    ppm_m: np.ndarray
+    defined: np.ndarray
+    transmittance: np.ndarray
+
+    @property
+    def low_contrast_fraction(self) -> float:
+        """Fraction of pixels whose contrast was too small for the inversion."""
+        return float(1.0 - self.defined.mean()) if self.defined.size else 0.0
+
+
+def column_density(radiance: np.ndarray, background: np.ndarray, gas_radiance: float,
+                   alpha_per_ppm_m: float, *, min_contrast: float = 1e-3,
+                   tau_min: float = 1e-3) -> ColumnDensity:
+    """Column density per pixel from Eq. 1 with Lambert-Beer.
+
+    Parameters
+    ----------
+    radiance : ndarray, shape (H, W)
+        Calibrated in-band radiance L of the frame, W m^-2 sr^-1.
+    background : ndarray, shape (H, W)
+        Radiance L_bg each pixel sees without gas (e.g. :class:`BackgroundModel`).
+    gas_radiance : float
+        In-band radiance L_g of a black body at the gas temperature, W m^-2 sr^-1.
+    alpha_per_ppm_m : float
+        Band-averaged absorption coefficient alpha_g, natural log, per ppm*m.
+    min_contrast : float
+        Smallest |L_bg - L_g| in W m^-2 sr^-1 for which the inversion is defined (set it a
+        few times the radiance noise: NETD x dL/dT).
+    tau_min : float
+        Floor of tau (0 < tau_min < 1).
+
+    Returns
+    -------
+    ColumnDensity
+    """
+    L = np.asarray(radiance, np.float64)
+    bg = np.asarray(background, np.float64)
+    if L.shape != bg.shape or L.ndim != 2:
+        raise ValueError(f"radiance and background must be the same 2-D shape, got "
+                         f"{L.shape} and {bg.shape}")
+    if not alpha_per_ppm_m > 0 or not 0 < tau_min < 1 or not min_contrast > 0:
+        raise ValueError("alpha_per_ppm_m and min_contrast must be > 0, 0 < tau_min < 1")
+    contrast = bg - float(gas_radiance)
+    defined = np.isfinite(L) & np.isfinite(bg) & (np.abs(contrast) >= min_contrast)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(defined, (L - float(gas_radiance)) / np.where(defined, contrast, 1.0),
+                       1.0)
+    tau = np.clip(tau, tau_min, 1.0)
+    cl = -np.log(tau) / alpha_per_ppm_m
+    return ColumnDensity(ppm_m=np.where(defined, cl, 0.0).astype(np.float32),
+                         defined=defined, transmittance=tau.astype(np.float32))
+
+
+class BackgroundModel:
+    """Background radiance without gas: per-pixel median of recent gas-free samples.
+
+    A robust temporal statistic: each pixel's median over the last ``capacity`` frames in
+    which that pixel was not segmented as gas. Pixels with fewer than ``min_samples``
+    gas-free samples (a plume sitting on them) fall back to the median over all their
+    samples, which is biased towards gas (underestimates CL) and is reported through
+    :attr:`fallback_fraction`. The estimate is refreshed every ``refresh`` updates, since
+    a median over the stack costs tens of milliseconds.
+
+    Parameters
+    ----------
+    capacity : int
+        Frames kept (e.g. 60 = 2 s at 30 Hz).
+    min_samples : int
+        Gas-free samples a pixel needs for its own estimate.
+    refresh : int
+        Recompute the median every this many updates.
+    """
+
+    def __init__(self, capacity: int = 60, min_samples: int = 8, refresh: int = 10) -> None:
+        if capacity < 1 or not 1 <= min_samples <= capacity or refresh < 1:
+            raise ValueError("need capacity >= 1, 1 <= min_samples <= capacity, refresh >= 1")
+        self.capacity, self.min_samples, self.refresh = capacity, min_samples, refresh
+        self._frames: np.ndarray | None = None
+        self._gas: np.ndarray | None = None
+        self._count = 0
+        self._estimate: np.ndarray | None = None
+        self.fallback_fraction = 0.0
+
+    def update(self, radiance: np.ndarray, gas_mask: np.ndarray | None = None) -> None:
+        """Add one frame (W m^-2 sr^-1, (H, W)) and its gas mask (True = gas)."""
+        L = np.asarray(radiance, np.float32)
+        if self._frames is None or self._frames.shape[1:] != L.shape:
+            self._frames = np.empty((self.capacity, *L.shape), np.float32)
+            self._gas = np.zeros((self.capacity, *L.shape), bool)
+            self._count = 0
+        assert self._gas is not None
+        k = self._count % self.capacity
+        self._frames[k] = L
+        self._gas[k] = False if gas_mask is None else np.asarray(gas_mask, bool)
+        self._count += 1
+        if self._estimate is None or self._count % self.refresh == 0:
+            self._estimate = self._median()
+
+    def _median(self) -> np.ndarray:
+        assert self._frames is not None and self._gas is not None
+        n = min(self._count, self.capacity)
+        frames, gas = self._frames[:n], self._gas[:n]
+        free = np.where(gas, np.nan, frames)
+        enough = (~gas).sum(axis=0) >= min(self.min_samples, n)
+        with np.errstate(all="ignore"):
+            own = np.nanmedian(np.where(enough[None], free, frames), axis=0)
+        self.fallback_fraction = float(1.0 - enough.mean())
+        return own.astype(np.float32)
+
+    def estimate(self) -> np.ndarray | None:
+        """Current background radiance, (H, W) float32; None before the first frame."""
+        return self._estimate
+
+    @property
+    def frames(self) -> int:
+        """Frames seen so far."""
+        return self._count

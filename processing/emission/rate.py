@@ -1,0 +1,173 @@
+"""Emission rate of one frame (stereo and single-camera) and its time average.
+
+Stereo (ours): Q = sum sigma_i (V_i . n) ds_i with the 3D velocity of Eq. 4 and the depth
+Z_i = s b / d_i of every pixel. Single-camera quantitative OGI (the baseline products use):
+the same column density and curtains, but the velocity from image-plane flow at one typed-in
+distance Z_typed, V = (u, v, 0) Z_typed / (s dt), and ds_i = Z_typed / s. It cannot see
+motion along the optical axis nor the perspective of a plume moving towards the camera,
+and any error in Z_typed enters the rate twice (in V and in ds).
+
+A frame's rate is the mean over its defined curtains; the window average
+(:class:`RateWindow`) is the mean over frames in the last ``window_s`` seconds, with an
+uncertainty from the spread over curtains and over time (see :meth:`RateWindow.estimate`).
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass
+
+import numpy as np
+
+from processing.emission.curtains import curtain_flux
+from processing.emission.placement import Placement
+
+
+@dataclass(frozen=True)
+class FrameRate:
+    """Rate of one frame.
+
+    Attributes
+    ----------
+    rate_g_s : float or None
+        Mean over the defined curtains, g/s; None when no curtain was defined.
+    curtain_rates_g_s : tuple of float
+        Each defined curtain's rate, g/s.
+    reason : str
+        Why the rate is None ("no gas", "no motion", "plume too short", "no valid
+        velocity on the curtains"); empty otherwise.
+    """
+
+    rate_g_s: float | None
+    curtain_rates_g_s: tuple[float, ...]
+    reason: str = ""
+
+
+def frame_rate(placement: Placement, sigma_kg_m2: np.ndarray, velocity_m_s: np.ndarray,
+               depth_m: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray, *,
+               principal_point: tuple[float, float], camera_constant: float) -> FrameRate:
+    """Stereo emission rate of one frame through the curtains of ``placement``.
+
+    Shapes and units as in :func:`processing.emission.curtains.curtain_flux`.
+    """
+    if not placement.curtains:
+        return FrameRate(None, (), placement.reason or "no curtains")
+    rates = []
+    for c in placement.curtains:
+        f = curtain_flux(c, sigma_kg_m2, velocity_m_s, depth_m, valid, gas_mask,
+                         principal_point=principal_point, camera_constant=camera_constant)
+        if f.defined:
+            rates.append(f.rate_kg_s * 1e3)
+    if not rates:
+        return FrameRate(None, (), "no valid velocity on the curtains")
+    return FrameRate(float(np.mean(rates)), tuple(rates))
+
+
+def single_camera_velocity(flow: np.ndarray, distance_m: float, camera_constant: float,
+                           dt_s: float) -> np.ndarray:
+    """Image-plane velocity at one typed-in distance: (u, v, 0) Z / (s dt), m/s, (H, W, 3)."""
+    if not distance_m > 0 or not dt_s > 0:
+        raise ValueError(f"distance and dt must be > 0, got {distance_m} m, {dt_s} s")
+    f = np.asarray(flow, np.float64)
+    v = np.zeros((*f.shape[:2], 3))
+    v[..., :2] = f * (distance_m / (camera_constant * dt_s))
+    return v
+
+
+def single_camera_rate(placement: Placement, sigma_kg_m2: np.ndarray, flow: np.ndarray,
+                       gas_mask: np.ndarray, *, distance_m: float, dt_s: float,
+                       principal_point: tuple[float, float],
+                       camera_constant: float) -> FrameRate:
+    """The single-camera QOGI rate of one frame (module docstring), same curtains."""
+    v = single_camera_velocity(flow, distance_m, camera_constant, dt_s)
+    depth = np.full(gas_mask.shape, float(distance_m))
+    valid = np.all(np.isfinite(np.asarray(flow)), axis=-1)
+    return frame_rate(placement, sigma_kg_m2, v, depth, valid, gas_mask,
+                      principal_point=principal_point, camera_constant=camera_constant)
+
+
+@dataclass(frozen=True)
+class RateEstimate:
+    """Windowed emission rate, what the appliance reports.
+
+    Attributes
+    ----------
+    rate_g_s, rate_kg_h : float or None
+        Mean rate over the window; None when no frame in the window had one.
+    uncertainty_g_s : float or None
+        One standard uncertainty of ``rate_g_s``.
+    frames : int
+        Frames in the window with a defined rate.
+    frames_total : int
+        All frames in the window.
+    window_s : float
+        Window length, s.
+    """
+
+    rate_g_s: float | None
+    rate_kg_h: float | None
+    uncertainty_g_s: float | None
+    frames: int
+    frames_total: int
+    window_s: float
+
+
+class RateWindow:
+    """Time average of frame rates over the last ``window_s`` seconds.
+
+    Parameters
+    ----------
+    window_s : float
+        Window length in seconds (default 30 s).
+    """
+
+    def __init__(self, window_s: float = 30.0) -> None:
+        if not window_s > 0:
+            raise ValueError(f"window_s must be > 0, got {window_s}")
+        self.window_s = float(window_s)
+        self._items: collections.deque[tuple[float, FrameRate]] = collections.deque()
+
+    def push(self, t_s: float, rate: FrameRate) -> RateEstimate:
+        """Add the rate of the frame at time ``t_s`` (s) and return the window's estimate."""
+        self._items.append((float(t_s), rate))
+        while self._items and self._items[0][0] < t_s - self.window_s:
+            self._items.popleft()
+        return self.estimate()
+
+    def estimate(self) -> RateEstimate:
+        """Mean of the frame rates in the window and its standard uncertainty.
+
+        The uncertainty combines (a) the spread over curtains: each frame's standard error
+        of the curtain mean, averaged in quadrature over the frames; (b) the spread over
+        time: the standard deviation of the frame rates over sqrt(n_eff), with n_eff the
+        number of frames divided by twice the integral correlation time of the series
+        (consecutive frames of a turbulent plume are not independent).
+        """
+        rates = [r for _, r in self._items if r.rate_g_s is not None]
+        total = len(self._items)
+        if not rates:
+            return RateEstimate(None, None, None, 0, total, self.window_s)
+        x = np.array([r.rate_g_s for r in rates], np.float64)
+        mean = float(x.mean())
+        sem_curtains = [np.std(r.curtain_rates_g_s, ddof=1) / np.sqrt(len(r.curtain_rates_g_s))
+                        for r in rates if len(r.curtain_rates_g_s) > 1]
+        a = (float(np.sqrt(np.mean(np.square(sem_curtains)) / len(rates)))
+             if sem_curtains else 0.0)
+        b = 0.0
+        if len(x) > 1:
+            n_eff = max(1.0, len(x) / (2.0 * integral_time_frames(x)))
+            b = float(np.std(x, ddof=1) / np.sqrt(n_eff))
+        unc = float(np.hypot(a, b))
+        return RateEstimate(mean, mean * 3.6, unc, len(rates), total, self.window_s)
+
+
+def integral_time_frames(x: np.ndarray) -> float:
+    """Integral correlation time of a series in samples (>= 0.5; sum of the
+    autocorrelation up to its first zero crossing)."""
+    x = np.asarray(x, np.float64) - np.mean(x)
+    var = float(x @ x)
+    if var == 0.0 or len(x) < 3:
+        return 0.5
+    acf = np.correlate(x, x, mode="full")[len(x) - 1:] / var
+    cut = np.argmax(acf <= 0) if np.any(acf <= 0) else len(acf)
+    return max(0.5, float(acf[:cut].sum()) - 0.5)

@@ -1,0 +1,214 @@
+"""Emission rate: column density (Eq. 1 inverted), curtain flux, placement, window, gas cell."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from processing.calibration.radiometric import band_radiance
+from processing.emission import (
+    METHANE,
+    Curtain,
+    FrameRate,
+    RateWindow,
+    column_density,
+    curtain_flux,
+    fit_alpha,
+    frame_rate,
+    g_s_to_kg_h,
+    place_curtains,
+    ppm_m_to_kg_m2,
+    single_camera_rate,
+)
+from processing.emission.column import BackgroundModel
+
+S_PX, CX, CY = 780.0, 159.5, 119.5
+H, W = 240, 320
+
+
+def _eq1(cl_ppm_m: np.ndarray, l_bg: float, l_gas: float, alpha: float) -> np.ndarray:
+    tau = np.exp(-alpha * cl_ppm_m)
+    return l_bg * tau + l_gas * (1 - tau)
+
+
+def test_column_density_inverts_eq1_exactly() -> None:
+    rng = np.random.default_rng(0)
+    cl = rng.uniform(0, 5000, (H, W))
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(285.0))
+    L = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    res = column_density(L, np.full((H, W), l_bg), l_gas, METHANE.alpha_per_ppm_m)
+    assert res.defined.all()
+    np.testing.assert_allclose(res.ppm_m, cl, rtol=1e-4, atol=0.05)
+
+
+def test_column_density_undefined_without_thermal_contrast() -> None:
+    l_gas = float(band_radiance(290.0))
+    L = np.full((4, 4), l_gas)
+    res = column_density(L, np.full((4, 4), l_gas), l_gas, 5e-5)
+    assert not res.defined.any()
+    assert np.all(res.ppm_m == 0) and res.low_contrast_fraction == 1.0
+
+
+def test_unit_conversions() -> None:
+    # 1 ppm*m of methane at 15 degC, 1 atm: 1e-6 m of pure gas at 0.67836 kg/m^3.
+    sigma = ppm_m_to_kg_m2(1.0, molar_mass_kg_mol=0.01604, temperature_k=288.15)
+    assert sigma == pytest.approx(6.7836e-7, rel=1e-4)
+    assert g_s_to_kg_h(1.0) == pytest.approx(3.6)
+    with pytest.raises(ValueError):
+        ppm_m_to_kg_m2(1.0, molar_mass_kg_mol=0.016, temperature_k=0.0)
+
+
+def _slab_scene(v: tuple[float, float, float], z0: float = 5.0, thickness: float = 0.2,
+                rows: tuple[int, int] = (100, 140), rho: float = 2e-3):
+    """A gas slab of density rho (kg/m^3), thickness t at depth z0, rows y in [r0, r1)."""
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    r_norm = np.sqrt((x - CX) ** 2 + (y - CY) ** 2 + S_PX**2)
+    gas = (y >= rows[0]) & (y < rows[1])
+    sigma = np.where(gas, rho * thickness * r_norm / S_PX, 0.0)  # path t |r| / s through it
+    vel = np.broadcast_to(np.asarray(v, np.float64), (H, W, 3)).copy()
+    depth = np.full((H, W), z0)
+    return sigma, vel, depth, np.ones((H, W), bool), gas
+
+
+@pytest.mark.parametrize("x_c", [60.0, 159.5, 290.0])
+def test_flux_of_an_analytic_slab_is_exact(x_c: float) -> None:
+    v = (1.5, -0.2, 0.4)
+    rho, t, z0, rows = 2e-3, 0.2, 5.0, (100, 140)
+    sigma, vel, depth, valid, gas = _slab_scene(v, z0, t, rows, rho)
+    curtain = Curtain((x_c, 80.0), (x_c, 170.0), normal_sign=-1.0)  # n toward +X
+    res = curtain_flux(curtain, sigma, vel, depth, valid, gas,
+                       principal_point=(CX, CY), camera_constant=S_PX)
+    k = (x_c - CX) / S_PX
+    height_m = (rows[1] - rows[0]) * z0 / S_PX
+    expected = rho * t * height_m * (v[0] - k * v[2])  # rho V.n over the plane X = k Z
+    assert res.defined and res.gas_samples == rows[1] - rows[0]
+    assert res.rate_kg_s == pytest.approx(expected, rel=0.01)
+
+
+def test_static_gas_has_zero_flux_and_empty_curtain_is_a_defined_zero() -> None:
+    sigma, vel, depth, valid, gas = _slab_scene((0.0, 0.0, 0.0))
+    res = curtain_flux(Curtain((100, 80), (100, 170)), sigma, vel, depth, valid, gas,
+                       principal_point=(CX, CY), camera_constant=S_PX)
+    assert res.defined and res.rate_kg_s == 0.0
+    empty = curtain_flux(Curtain((100, 0), (100, 50)), sigma, vel, depth, valid, gas,
+                         principal_point=(CX, CY), camera_constant=S_PX)
+    assert empty.defined and empty.gas_samples == 0 and empty.rate_kg_s == 0.0
+
+
+def test_curtain_without_valid_velocity_is_undefined_not_nan() -> None:
+    sigma, vel, depth, valid, gas = _slab_scene((1.0, 0.0, 0.0))
+    valid[:] = False
+    res = curtain_flux(Curtain((100, 80), (100, 170)), sigma, vel, depth, valid, gas,
+                       principal_point=(CX, CY), camera_constant=S_PX)
+    assert not res.defined and res.rate_kg_s == 0.0
+
+
+def _plume_mask() -> tuple[np.ndarray, np.ndarray]:
+    """A wedge-shaped plume from a source at (40, 120) drifting right, with its flow."""
+    y, x = np.mgrid[0:H, 0:W].astype(np.float64)
+    gas = (x >= 40) & (x <= 280) & (np.abs(y - 120) <= 5 + 0.15 * (x - 40))
+    flow = np.zeros((H, W, 2))
+    flow[..., 0] = 2.0
+    return gas, flow
+
+
+def test_placement_finds_the_source_and_orients_curtains_downstream() -> None:
+    gas, flow = _plume_mask()
+    p = place_curtains(gas, flow, n_curtains=4, exclusion_px=15)
+    assert p.reason == "" and len(p.curtains) == 4
+    assert p.source_xy is not None and p.source_xy[0] < 50
+    assert p.direction_xy == pytest.approx((1.0, 0.0))
+    for c in p.curtains:  # perpendicular to the motion, past the exclusion zone
+        assert c.start[0] == pytest.approx(c.end[0]) and c.start[0] >= 40 + 15
+    # A uniform slab moving right gives a positive flux through every curtain.
+    sigma = np.where(gas, 1e-4, 0.0)
+    vel = np.zeros((H, W, 3))
+    vel[..., 0] = 1.0
+    fr = frame_rate(p, sigma, vel, np.full((H, W), 5.0), np.ones((H, W), bool), gas,
+                    principal_point=(CX, CY), camera_constant=S_PX)
+    assert fr.rate_g_s is not None and all(q > 0 for q in fr.curtain_rates_g_s)
+
+
+def test_placement_reports_why_there_are_no_curtains() -> None:
+    gas, flow = _plume_mask()
+    assert place_curtains(np.zeros_like(gas), flow).reason == "no gas"
+    assert place_curtains(gas, np.zeros_like(flow)).reason == "no motion"
+
+
+def test_single_camera_equals_stereo_for_in_plane_motion_at_the_right_distance() -> None:
+    gas, flow = _plume_mask()
+    z, dt = 5.0, 1 / 30
+    p = place_curtains(gas, flow, n_curtains=3)
+    sigma = np.where(gas, 1e-4, 0.0)
+    vel = np.zeros((H, W, 3))
+    vel[..., 0] = flow[..., 0] * z / (S_PX * dt)  # the flow of an in-plane motion at Z
+    stereo = frame_rate(p, sigma, vel, np.full((H, W), z), np.ones((H, W), bool), gas,
+                        principal_point=(CX, CY), camera_constant=S_PX)
+    single = single_camera_rate(p, sigma, flow, gas, distance_m=z, dt_s=dt,
+                                principal_point=(CX, CY), camera_constant=S_PX)
+    assert stereo.rate_g_s is not None and single.rate_g_s is not None
+    assert single.rate_g_s == pytest.approx(stereo.rate_g_s, rel=0.01)
+    wrong = single_camera_rate(p, sigma, flow, gas, distance_m=2 * z, dt_s=dt,
+                               principal_point=(CX, CY), camera_constant=S_PX)
+    assert wrong.rate_g_s == pytest.approx(4 * stereo.rate_g_s, rel=0.01)  # Z enters twice
+
+
+def test_rate_window_mean_uncertainty_and_eviction() -> None:
+    win = RateWindow(window_s=1.0)
+    for k in range(10):
+        est = win.push(k * 0.1, FrameRate(2.0, (2.0, 2.0)))
+    assert est.rate_g_s == pytest.approx(2.0) and est.uncertainty_g_s == pytest.approx(0.0)
+    assert est.rate_kg_h == pytest.approx(7.2) and est.frames == 10
+    est = win.push(1.05, FrameRate(None, (), "no gas"))
+    assert est.frames_total == 10 and est.frames == 9  # t=0 left the window
+    rng = np.random.default_rng(1)
+    noisy = RateWindow(window_s=100.0)
+    for k in range(200):
+        q = float(rng.normal(3.0, 0.5))
+        est = noisy.push(k * 0.1, FrameRate(q, (q - 0.1, q + 0.1)))
+    assert est.rate_g_s == pytest.approx(3.0, abs=0.15)
+    assert 0.02 < est.uncertainty_g_s < 0.1  # ~ 0.5 / sqrt(200) for white noise
+
+
+def test_background_model_ignores_gas_samples() -> None:
+    bg = BackgroundModel(capacity=20, min_samples=5, refresh=1)
+    rng = np.random.default_rng(2)
+    for k in range(20):
+        frame = 10.0 + rng.normal(0, 0.01, (8, 8))
+        gas = np.zeros((8, 8), bool)
+        if k % 2:
+            frame[:4] -= 1.0  # gas darkens the top half in every other frame
+            gas[:4] = True
+        bg.update(frame, gas)
+    est = bg.estimate()
+    assert est is not None and np.allclose(est, 10.0, atol=0.02)
+    assert bg.fallback_fraction == 0.0
+
+
+def test_gas_cell_fit_recovers_a_known_coefficient() -> None:
+    alpha = 4.2e-5
+    l_bb, l_gas = float(band_radiance(323.15)), float(band_radiance(293.15))
+    cls = [500.0, 2000.0, 8000.0]
+    filled = _eq1(np.asarray(cls), l_bb, l_gas, alpha)
+    fit = fit_alpha(cls, filled.tolist(), l_bb, l_gas)
+    assert fit.alpha_per_ppm_m == pytest.approx(alpha, rel=1e-9)
+    assert fit.residual_rms < 1e-12
+    with pytest.raises(ValueError, match="transmittance"):
+        fit_alpha([500.0], [l_bb * 1.01], l_bb, l_gas)
+    with pytest.raises(ValueError, match="contrast"):
+        fit_alpha([500.0], [l_gas], l_gas, l_gas)
+
+
+def test_curtain_samples_every_pixel_once() -> None:
+    # Gas on odd rows only: a sampler that skipped or doubled rows would get it wrong.
+    sigma, vel, depth, valid, gas = _slab_scene((1.0, 0.0, 0.0))
+    odd = np.zeros((H, W), bool)
+    odd[1::2] = True
+    c = Curtain((CX, 100.0), (CX, 140.0), normal_sign=-1.0)
+    assert len(c.samples()) == 40 and c.spacing_px == 1.0
+    full = curtain_flux(c, sigma, vel, depth, valid, gas, principal_point=(CX, CY),
+                        camera_constant=S_PX)
+    half = curtain_flux(c, sigma, vel, depth, valid, gas & odd, principal_point=(CX, CY),
+                        camera_constant=S_PX)
+    assert half.gas_samples == 20
+    assert half.rate_kg_s == pytest.approx(full.rate_kg_s / 2, rel=1e-3)

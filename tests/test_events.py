@@ -1,0 +1,111 @@
+"""Leak-event logic (appliance.runtime.events): offline, on synthetic per-frame evidence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from appliance.runtime.events import (
+    EventConfig,
+    FrameEvidence,
+    LeakDetector,
+    evidence_from_fields,
+    zone_mask,
+)
+
+FPS = 15.0
+
+
+def _leak(t: float, k: int, rng: np.random.Generator) -> FrameEvidence:
+    return FrameEvidence(t, k, 900, 0.8, (40.0 + rng.normal(0, 2), 120.0 + rng.normal(0, 2)),
+                         rate_g_s=2.0, velocity_m_s=(1.0, 0.0, 0.2))
+
+
+def _quiet(t: float, k: int) -> FrameEvidence:
+    return FrameEvidence(t, k, 20, 0.1, None)
+
+
+def _run(frames: list[FrameEvidence], cfg: EventConfig | None = None):
+    det = LeakDetector(cfg)
+    transitions = [tr for ev in frames for tr in det.update(ev)]
+    det.close(frames[-1].t_s, frames[-1].frame, "end of data")
+    return det, transitions
+
+
+def test_a_steady_leak_is_one_event_with_start_and_end() -> None:
+    rng = np.random.default_rng(0)
+    frames = [(_leak(k / FPS, k, rng) if 5.0 <= k / FPS < 25.0 else _quiet(k / FPS, k))
+              for k in range(int(40 * FPS))]
+    det, transitions = _run(frames)
+    assert [e.id for e in det.finished] == [1]
+    ev = det.finished[0]
+    start_t = next(e.start_t_s for kind, e in transitions if kind == "start")
+    assert start_t == pytest.approx(5.0, abs=0.1)  # back-dated to the first positive frame
+    assert ev.end_t_s == pytest.approx(25.0, abs=0.1) and ev.end_reason == "gas gone"
+    assert ev.mean_rate_g_s == pytest.approx(2.0) and ev.peak_rate_g_s == pytest.approx(2.0)
+    assert ev.source_xy == pytest.approx((40.0, 120.0), abs=1.0)
+    assert 0.6 < ev.confidence <= 1.0
+
+
+def test_detection_delay_is_the_minimum_duration() -> None:
+    rng = np.random.default_rng(1)
+    det = LeakDetector(EventConfig(min_duration_s=2.0))
+    for k in range(int(20 * FPS)):
+        t = k / FPS
+        ev = _leak(t, k, rng) if t >= 5.0 else _quiet(t, k)
+        if any(kind == "start" for kind, _ in det.update(ev)):
+            assert t - 5.0 == pytest.approx(2.0, abs=0.1)
+            return
+    pytest.fail("no event started")
+
+
+def test_a_moving_warm_object_raises_no_event() -> None:
+    # Coherent motion and many pixels, but its "source" travels with it (3 px per frame).
+    frames = [FrameEvidence(k / FPS, k, 1200, 0.95, (10.0 + 3.0 * k % 300, 100.0))
+              for k in range(int(60 * FPS))]
+    det, transitions = _run(frames)
+    assert det.finished == [] and transitions == []
+
+
+def test_flicker_below_the_start_fraction_raises_no_event() -> None:
+    rng = np.random.default_rng(2)
+    frames = [(_leak(k / FPS, k, rng) if rng.random() < 0.3 else _quiet(k / FPS, k))
+              for k in range(int(120 * FPS))]
+    det, _ = _run(frames)
+    assert det.finished == []
+
+
+def test_hysteresis_keeps_an_intermittent_leak_as_one_event() -> None:
+    rng = np.random.default_rng(3)
+    frames = []
+    for k in range(int(60 * FPS)):
+        t = k / FPS
+        on = 5.0 <= t < 45.0 and (t < 10.0 or rng.random() < 0.5)
+        frames.append(_leak(t, k, rng) if on else _quiet(t, k))
+    det, _ = _run(frames)
+    assert len(det.finished) == 1 and det.finished[0].end_t_s == pytest.approx(45.0, abs=0.5)
+
+
+def test_min_rate_and_close_at_shutdown() -> None:
+    rng = np.random.default_rng(4)
+    frames = [_leak(k / FPS, k, rng) for k in range(int(10 * FPS))]
+    det, _ = _run(frames, EventConfig(min_rate_g_s=5.0))
+    assert det.finished == []  # 2 g/s is below the threshold
+    det, _ = _run(frames)
+    assert len(det.finished) == 1 and det.finished[0].end_reason == "end of data"
+
+
+def test_zones_and_evidence_from_fields() -> None:
+    h, w = 120, 160
+    zones = zone_mask((h, w), ignore=[((0, 0), (80, 0), (80, h), (0, h))])
+    assert not zones[:, :79].any() and zones[:, 81:].all()
+    mask = np.zeros((h, w), bool)
+    mask[50:70, 20:140] = True
+    flow = np.zeros((h, w, 2))
+    flow[..., 0] = 1.5
+    ev = evidence_from_fields(1.0, 3, mask, flow, zones, rate_g_s=1.0)
+    assert ev.gas_pixels == 20 * (140 - 81)  # only the part right of the ignore zone (x > 80)
+    assert ev.coherence == pytest.approx(1.0)
+    assert ev.source_xy is not None and 80 <= ev.source_xy[0] <= 84 and ev.rate_g_s == 1.0
+    watch = zone_mask((h, w), watch=[((0, 0), (10, 0), (10, 10), (0, 10))])
+    assert watch.sum() == 121
