@@ -9,6 +9,7 @@ from __future__ import annotations
 import shutil
 import socket
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -63,12 +64,17 @@ class Subscriber:
         import paho.mqtt.client as mqtt
 
         self.messages: list[tuple[str, bytes, bool]] = []
+        subscribed = threading.Event()
         self._client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-sub")
         self._client.on_message = lambda c, u, m: self.messages.append(
             (m.topic, m.payload, bool(m.retain)))
         self._client.on_connect = lambda c, u, f, rc, p: c.subscribe(topic, qos=1)
+        self._client.on_subscribe = lambda c, u, mid, rcs, p: subscribed.set()
         self._client.connect("127.0.0.1", port)
         self._client.loop_start()
+        if not subscribed.wait(10.0):  # a message published before this would be missed
+            self.close()
+            raise RuntimeError(f"no SUBACK from the broker on port {port} in 10 s")
 
     def wait_for(self, predicate, timeout: float = 10.0) -> list[tuple[str, bytes, bool]]:
         deadline = time.monotonic() + timeout
