@@ -41,8 +41,8 @@ import numpy as np
 
 #: Order in which stages are reported (the chain's ``timings_ms`` keys, without "total").
 STAGES: tuple[str, ...] = (
-    "preprocess", "flow", "disparity_init", "disparity", "velocity", "quality",
-    "segmentation", "summary",
+    "preprocess", "flow", "disparity_init", "disparity", "velocity_quality", "segmentation",
+    "summary",
 )
 SOURCES: tuple[str, ...] = ("field", "blob")
 FRAME_RATE_HZ = 30.0

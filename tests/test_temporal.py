@@ -1,0 +1,100 @@
+"""Temporal reuse in the chain: warm starts agree with cold starts, and only follow on."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from processing.chain import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
+from tests.scene_flow_plane import B_M, PP, S_PX, SIZE, render, texture
+
+GEOMETRY = StereoGeometry(
+    camera_constant=S_PX, principal_point=PP, baseline=B_M, image_size=(SIZE[1], SIZE[0])
+)
+PARAMS = ChainParameters(register=False, disparity_init="d0", d0=60.0)
+V_TRUE = np.array([0.3, -0.2, -0.5])
+DT = 1 / 30
+REGION = (slice(20, -20), slice(110, -20))  # seen by both cameras, away from borders
+
+
+def _sequence(n: int) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
+    """n stereo frames (16-bit counts) of a textured plane at 2 m moving with V_TRUE."""
+    tex = texture(0)
+    left, right = [], []
+    for k in range(n):
+        z = 2.0 + V_TRUE[2] * DT * k
+        shift = (V_TRUE[0] * DT * k, V_TRUE[1] * DT * k)
+        for frames, cam_x in ((left, 0.0), (right, B_M)):
+            frames.append(np.rint(1000.0 + 20000.0 * render(tex, z, shift, cam_x))
+                          .astype(np.uint16))
+    return left, right, [10.0 + k * DT for k in range(n)]
+
+
+def _triple(seq: tuple, k: int) -> tuple:
+    left, right, times = seq
+    return left[k:k + 3], right[k:k + 3], times[k:k + 3]
+
+
+def _mean_velocity(result) -> np.ndarray:
+    valid = result.valid[REGION]
+    return result.velocity[REGION][valid].astype(np.float64).mean(axis=0)
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_warm_started_results_agree_with_cold_ones(stride: int) -> None:
+    """Bounds: flow within 0.05 px, d within 0.05 px, d' within 0.02 px (median over the
+    region), mean velocity within 2 % and 1 deg of the cold start of the same triple."""
+    seq = _sequence(3 + 2 * stride)
+    state = ChainState(stride=stride)
+    results = [compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS, state)
+               for k in range(0, 2 * stride + 1, stride)]
+    assert [r.warm for r in results] == [False, True, True]
+    assert (state.warm_starts, state.cold_starts) == (2, 1)
+    for k, warm in zip(range(0, 2 * stride + 1, stride), results, strict=True):
+        cold = compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS)
+        assert not cold.warm
+        for a, b, bound in ((warm.flow, cold.flow, 0.05), (warm.disparity, cold.disparity, 0.05),
+                            (warm.disparity_change, cold.disparity_change, 0.02)):
+            assert np.median(np.abs(a[REGION] - b[REGION])) < bound
+        vw, vc = _mean_velocity(warm), _mean_velocity(cold)
+        assert abs(np.linalg.norm(vw) / np.linalg.norm(vc) - 1) < 0.02
+        cos = vw @ vc / np.linalg.norm(vw) / np.linalg.norm(vc)
+        assert np.degrees(np.arccos(min(cos, 1.0))) < 1.0
+
+
+def test_non_consecutive_triple_never_uses_a_warm_start() -> None:
+    seq = _sequence(8)
+    state = ChainState()
+    assert not compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, state).warm
+    assert compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, state).warm
+    # A dropped frame (triple 3 after triple 1), a repeated and an earlier triple: cold.
+    for k in (3, 3, 1):
+        res = compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS, state)
+        assert not res.warm, k
+    # A stride-1 state does not take a triple two frames on as consecutive.
+    assert not compute_scene_flow(*_triple(seq, 3), GEOMETRY, PARAMS, state).warm
+    assert compute_scene_flow(*_triple(seq, 4), GEOMETRY, PARAMS, state).warm
+    # A stride-2 state takes exactly the triple two frames on.
+    s2 = ChainState(stride=2)
+    compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, s2)
+    assert not compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, s2).warm
+    assert compute_scene_flow(*_triple(seq, 3), GEOMETRY, PARAMS, s2).warm
+
+
+def test_warm_start_can_be_switched_off_and_the_state_reset() -> None:
+    seq = _sequence(5)
+    off = dataclasses.replace(PARAMS, warm_start=False)
+    state = ChainState()
+    for k in range(3):
+        assert not compute_scene_flow(*_triple(seq, k), GEOMETRY, off, state).warm
+    state = ChainState()
+    compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, state)
+    state.reset()
+    assert not compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, state).warm
+
+
+def test_bad_stride_raises() -> None:
+    with pytest.raises(ValueError, match="stride"):
+        ChainState(stride=3)
