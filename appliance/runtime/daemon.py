@@ -33,6 +33,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.recording import schemas
+from appliance.runtime.keepup import KeepUpCheck
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.stamping import StereoStamper
 from appliance.runtime.workers import WorkerResult, worker_main
@@ -68,6 +69,15 @@ class _Counters:
     wind_samples: int = 0
 
 
+def _peak_rss_mb() -> str:
+    """Peak resident memory of this process and of its largest ended child (workers)."""
+    import resource
+
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    return f"daemon {own:.0f} MB, largest worker/child {child:.0f} MB"
+
+
 class Appliance:
     """One run of the appliance (``ogiflow run`` and the systemd service).
 
@@ -96,6 +106,7 @@ class Appliance:
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         self.live_url: str | None = None
+        self._keep_up = KeepUpCheck()
 
     # ------------------------------------------------------------------ helpers
 
@@ -266,6 +277,12 @@ class Appliance:
         self.counters.skipped_pairs += res.skipped
         self.health.latency("processing").add((res.done_mono_ns - res.t_mono_ns[2]) / 1e6)
         self.health.stream("results").tick()
+        if res.skipped:
+            self.health.stream("skipped").tick(res.skipped)  # skipped triples per second
+        verdict = self._keep_up.observe(time.monotonic(), self.counters.results + 1,
+                                        self.counters.skipped_pairs)
+        if verdict is not None:
+            (log.info if verdict[0] else log.warning)("%s", verdict[1])
         if res.error is not None:
             self.counters.result_errors += 1
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
@@ -361,7 +378,8 @@ class Appliance:
                 for i in range(cfg.processing.workers):
                     p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                                     args=(i, self.ring.handle(), results, stop_workers,
-                                          self.geometry, params), daemon=True)
+                                          self.geometry, params, cfg.processing.workers),
+                                    daemon=True)
                     p.start()
                     workers.append(p)
             else:
@@ -437,12 +455,18 @@ class Appliance:
         import sys
 
         self._banner = True
+        t_start = time.monotonic()
         code = self.run()
         c = self.counters
+        elapsed = max(time.monotonic() - t_start, 1e-9)
+        share = c.results / max(c.results + c.skipped_pairs, 1)
         sys.stderr.write(
             f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
-            f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
-            f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+            f"pairs {c.pairs}, processed {c.results} ({c.results / elapsed:.1f}/s, "
+            f"{100 * share:.0f} %), skipped {c.skipped_pairs} "
+            f"({c.skipped_pairs / elapsed:.1f}/s), failed {c.result_errors}, "
+            f"wind samples {c.wind_samples}\n")
+        sys.stderr.write(f"ogiflow: peak RSS {_peak_rss_mb()}\n")
         comparison = self.publisher.truth_comparison()
         if comparison is not None:
             sys.stderr.write(
