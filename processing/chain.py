@@ -42,13 +42,20 @@ from processing.pixelwise import velocity_and_quality
 from processing.preprocess import (
     DiffScaleTracker,
     PreprocessedTriple,
+    apply_rectification,
     preprocess_stereo,
     radiometric_correction,
 )
 from processing.quality import c_usf
 from processing.segmentation import segment_gas
 from processing.summary import GasSummary, summarize_frame
-from processing.temporal import ChainState, remember, solver_options, warm_start
+from processing.temporal import (
+    ChainState,
+    corrected_frames,
+    remember,
+    solver_options,
+    warm_start,
+)
 
 __all__ = ["ChainParameters", "ChainState", "SceneFlowResult", "StereoGeometry",
            "compute_scene_flow", "frame_interval", "initial_scale"]
@@ -384,11 +391,18 @@ def compute_scene_flow(
     shift01 = warm.shift01 if warm is not None else (None, None)
 
     t = time.perf_counter()
+    # Radiometric correction and rectification once per frame (processing.temporal); the
+    # corrected frames then go through pre-processing as they are (no curve, no maps).
+    corrected = [
+        corrected_frames(state, cam, frames, times,
+                         lambda f, curve=curve, maps=maps: _correct(f, curve, maps))
+        for cam, (frames, curve, maps) in enumerate((
+            (left, geometry.curve_left, geometry.maps_left),
+            (right, geometry.curve_right, geometry.maps_right)))
+    ]
     pl, pr = preprocess_stereo(
-        left, right, scale=scale,
-        curves=(geometry.curve_left, geometry.curve_right),
-        maps=(geometry.maps_left, geometry.maps_right),
-        register=params.register, denoise_lambda=params.denoise_lambda, shift01=shift01,
+        corrected[0], corrected[1], scale=scale, register=params.register,
+        denoise_lambda=params.denoise_lambda, shift01=shift01,
         max_shift_px=params.max_jitter_px,
     )
     t = lap("preprocess", t)
@@ -448,6 +462,13 @@ def compute_scene_flow(
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=timings,
         warm=warm is not None,
     )
+
+
+def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None
+             ) -> np.ndarray:
+    """Steps 1-2 of :mod:`processing.preprocess` for one raw frame."""
+    img = radiometric_correction(frame, curve)
+    return img if maps is None else apply_rectification(img, maps[0], maps[1])
 
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,

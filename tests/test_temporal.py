@@ -98,3 +98,31 @@ def test_warm_start_can_be_switched_off_and_the_state_reset() -> None:
 def test_bad_stride_raises() -> None:
     with pytest.raises(ValueError, match="stride"):
         ChainState(stride=3)
+
+
+def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> None:
+    """Curves and rectification maps: the chain's per-frame cache gives exactly the
+    differential images of pre-processing the raw triple directly."""
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.preprocess import preprocess_stereo
+
+    seq = _sequence(4)
+    h, w = SIZE
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    maps = (xx + 0.3, yy - 0.2)  # a small rectifying shift
+    curves = (CharacteristicCurve(offset=900.0, gain=2.0e4, curvature=-300.0),
+              CharacteristicCurve(offset=1100.0, gain=1.9e4))
+    geo = dataclasses.replace(GEOMETRY, maps_left=maps, maps_right=maps,
+                              curve_left=curves[0], curve_right=curves[1])
+    params = dataclasses.replace(PARAMS, diff_scale=0.01)
+    state = ChainState()
+    for k in range(2):
+        res = compute_scene_flow(*_triple(seq, k), geo, params, state)
+        left, right, _ = _triple(seq, k)
+        pl, pr = preprocess_stereo(left, right, scale=0.01, curves=curves, maps=(maps, maps),
+                                   register=False)
+        for got, want in ((res.diff_left, (pl.diff0, pl.diff1)),
+                          (res.diff_right, (pr.diff0, pr.diff1))):
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+    assert state.frames_reused == 4  # t1, t2 of both cameras in the second triple
