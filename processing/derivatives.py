@@ -180,3 +180,57 @@ def warp_dx_catmull_rom(
                          np.ascontiguousarray(map_x, dtype=np.float32),
                          np.ascontiguousarray(map_y, dtype=np.float32), out, out_dx)
     return out, out_dx
+
+
+@numba.njit(cache=True, fastmath=True)
+def _catmull_rom_dx_along_rows(img: np.ndarray, map_x: np.ndarray, out: np.ndarray,
+                               out_dx: np.ndarray) -> None:
+    h, w = img.shape
+    wm = np.float32(w - 1)
+    zero = np.float32(0.0)
+    c05 = np.float32(0.5)
+    c15 = np.float32(1.5)
+    c25 = np.float32(2.5)
+    c2 = np.float32(2.0)
+    c45 = np.float32(4.5)
+    c5 = np.float32(5.0)
+    c4 = np.float32(4.0)
+    one = np.float32(1.0)
+    for y in range(h):
+        rx = map_x[y]
+        r = img[y]
+        o = out[y]
+        od = out_dx[y]
+        for x in range(w):
+            fx = min(max(rx[x], zero), wm)
+            inside_x = rx[x] == fx
+            ix = int(fx)
+            tx = fx - ix
+            tx2 = tx * tx
+            tx3 = tx2 * tx
+            q0 = r[max(ix - 1, 0)]
+            q1 = r[ix]
+            q2 = r[min(ix + 1, w - 1)]
+            q3 = r[min(ix + 2, w - 1)]
+            o[x] = ((-c05 * tx3 + tx2 - c05 * tx) * q0 + (c15 * tx3 - c25 * tx2 + one) * q1
+                    + (-c15 * tx3 + c2 * tx2 + c05 * tx) * q2 + (c05 * tx3 - c05 * tx2) * q3)
+            if inside_x:
+                od[x] = ((-c15 * tx2 + c2 * tx - c05) * q0 + (c45 * tx2 - c5 * tx) * q1
+                         + (-c45 * tx2 + c4 * tx + c05) * q2 + (c15 * tx2 - tx) * q3)
+            else:
+                od[x] = zero
+
+
+def warp_dx_catmull_rom_rows(image: np.ndarray, map_x: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`warp_dx_catmull_rom` for samples on the pixel rows (map_y = y).
+
+    With an integer row the vertical Catmull-Rom weights are exactly (0, 1, 0, 0), so the
+    result is the same as the general warp's, from 4 samples instead of 16 (the right image
+    at t0 is sampled this way in Eq. 3a: only the disparity moves it).
+    """
+    out = np.empty(map_x.shape, np.float32)
+    out_dx = np.empty(map_x.shape, np.float32)
+    _catmull_rom_dx_along_rows(np.ascontiguousarray(image, dtype=np.float32),
+                               np.ascontiguousarray(map_x, dtype=np.float32), out, out_dx)
+    return out, out_dx

@@ -139,7 +139,7 @@ def _level_disparity(
     for _ in range(n_warps):
         mx0 = xx - d
         mx1 = fx - d - dp
-        r0w, r0wx = warp_dx(ir0, mx0, yy)
+        r0w, r0wx = derivatives.warp_dx_catmull_rom_rows(ir0, mx0)
         r1w, r1wx = warp_dx(ir1, mx1, fy)
         disparity_terms.warp_residuals(il0, l0x, l1w, l1wx, m_l1, r0w, r0wx, r1w, r1wx, mx0,
                                        mx1, fy, e1, e3, e4, g0, g1, m1, m3, m4)

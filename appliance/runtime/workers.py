@@ -142,8 +142,10 @@ def worker_main(
         How many workers share the stream (see the module docstring).
     """
     from appliance.runtime.ring import PairRing
+    from appliance.runtime.tuning import keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    keep_freed_memory()
     _single_threaded()
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)
