@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from processing.baselines import sgbm_initial_disparity
-from processing.calibration import StereoCalibration, rectification_maps
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.disparity import joint_disparity
 from processing.optical_flow import brox_optical_flow
@@ -48,6 +47,7 @@ from processing.preprocess import (
 )
 from processing.quality import c_usf
 from processing.segmentation import segment_gas
+from processing.stereo_geometry import Maps, StereoGeometry
 from processing.summary import GasSummary, summarize_frame
 from processing.temporal import (
     ChainState,
@@ -60,84 +60,10 @@ from processing.temporal import (
 __all__ = ["ChainParameters", "ChainState", "SceneFlowResult", "StereoGeometry",
            "compute_scene_flow", "frame_interval", "initial_scale"]
 
-Maps = tuple[np.ndarray, np.ndarray]
-
 #: Solver options on a warm start (see ChainParameters); chosen by measurement, README.
 WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
                                               "n_inner_finest": 2, "n_sor": 8}
-
-
-@dataclass(frozen=True)
-class StereoGeometry:
-    """What the chain needs from a stereo calibration.
-
-    Attributes
-    ----------
-    camera_constant : float
-        Rectified camera constant s in px (Eq. 4).
-    principal_point : (float, float)
-        Rectified principal point (x0, y0) of the left image in px.
-    baseline : float
-        Stereo baseline b in m.
-    image_size : (int, int)
-        (W, H) of the raw frames.
-    maps_left, maps_right : (map_x, map_y) or None
-        Rectification maps (float32, (H, W) each); None when the raw frames are already
-        rectified (ideal or simulated cameras).
-    curve_left, curve_right : CharacteristicCurve or None
-        Radiometric characteristic curves; None means counts are used as they are.
-    """
-
-    camera_constant: float
-    principal_point: tuple[float, float]
-    baseline: float
-    image_size: tuple[int, int]
-    maps_left: Maps | None = None
-    maps_right: Maps | None = None
-    curve_left: CharacteristicCurve | None = None
-    curve_right: CharacteristicCurve | None = None
-
-    @classmethod
-    def from_calibration(cls, calib: StereoCalibration, *, rectify: bool = True) -> StereoGeometry:
-        """Geometry, rectification maps and curves of a loaded calibration file."""
-        maps_l = maps_r = None
-        if rectify:
-            maps = rectification_maps(calib)
-            maps_l, maps_r = (maps.left_x, maps.left_y), (maps.right_x, maps.right_y)
-        radio = calib.radiometric
-        return cls(
-            camera_constant=float(calib.s_px),
-            principal_point=(float(calib.cx_px), float(calib.cy_px)),
-            baseline=float(calib.b_m),
-            image_size=(int(calib.image_size[0]), int(calib.image_size[1])),
-            maps_left=maps_l,
-            maps_right=maps_r,
-            curve_left=radio.left if radio is not None else None,
-            curve_right=radio.right if radio is not None else None,
-        )
-
-    @classmethod
-    def from_synthetic_camera(cls, cam: Mapping[str, Any]) -> StereoGeometry:
-        """Geometry of a synthetic sequence's ideal, rectified camera pair.
-
-        ``cam`` is the ``camera`` entry of a sequence's ``meta.json`` (``s_px``, ``cx_px``,
-        ``cy_px``, ``b_m``, ``width``, ``height``, optional ``k1``/``k2``).
-
-        Raises
-        ------
-        ValueError
-            When the cameras have lens distortion: the frames then need the calibration
-            file the simulator writes, not this ideal geometry.
-        """
-        if cam.get("k1", 0.0) or cam.get("k2", 0.0):
-            raise ValueError(
-                f"the synthetic cameras have lens distortion (k1={cam.get('k1')}, "
-                f"k2={cam.get('k2')}); use the matching calibration file instead")
-        return cls(camera_constant=float(cam["s_px"]),
-                   principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
-                   baseline=float(cam["b_m"]),
-                   image_size=(int(cam["width"]), int(cam["height"])))
 
 
 @dataclass(frozen=True)
