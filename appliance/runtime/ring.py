@@ -244,7 +244,8 @@ class PairRing:
 
     # ------------------------------------------------------------------ readers
 
-    def take_newest(self, k: int = 3, *, stride: int = 1, phase: int = 0) -> PairLease | None:
+    def take_newest(self, k: int = 3, *, stride: int = 1, phase: int = 0,
+                    max_lag: int | None = None) -> PairLease | None:
         """Lend the newest ``k`` consecutive pairs if their window was not taken yet.
 
         Parameters
@@ -257,6 +258,12 @@ class PairRing:
             stride 2 and phases 0 and 1 then see every other triple each, so that each can
             start from its own previous triple (:mod:`processing.temporal`); ``skipped``
             counts the windows of this phase that were never taken.
+        max_lag : int, optional
+            Hand windows out in order instead: the one right after this phase's last
+            window, as long as it ends at most ``max_lag`` pairs behind the newest pair;
+            beyond that, the newest (the windows in between are skipped). A reader that
+            starts each triple from its previous one stays warm this way while it lags a
+            little, instead of jumping to the newest window and starting cold.
 
         Returns
         -------
@@ -266,6 +273,9 @@ class PairRing:
         """
         if not 1 <= k <= self.capacity - 1:
             raise ValueError(f"k must be in 1..capacity-1 = {self.capacity - 1}, got {k}")
+        if max_lag is not None and not 0 <= max_lag <= self.capacity - k - 1:
+            raise ValueError(f"max_lag must be in 0..capacity-k-1 = {self.capacity - k - 1}, "
+                             f"got {max_lag}")
         if not (1 <= stride <= MAX_STRIDE and 0 <= phase < stride):
             raise ValueError(f"need 1 <= stride <= {MAX_STRIDE} and 0 <= phase < stride, "
                              f"got stride {stride}, phase {phase}")
@@ -278,6 +288,8 @@ class PairRing:
             first = k - 1 + (phase - (k - 1)) % stride  # first window end of this phase
             if end < first or end <= claimed:
                 return None
+            if max_lag is not None and claimed >= first and newest - (claimed + stride) <= max_lag:
+                end = claimed + stride  # the next window of this phase, in order
             skipped = (end - max(claimed, first - stride)) // stride - 1
             self._header[word] = end
             self._header[_CLAIMED] = max(int(self._header[_CLAIMED]), end)

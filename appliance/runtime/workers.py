@@ -14,7 +14,9 @@ previous triple makes a triple about twice as cheap as a cold one, but only a wo
 saw that triple can use it. With two workers each takes every other triple (ring stride 2,
 phases 0 and 1) and starts from its own triple two frames earlier; "take the newest window"
 alone would hand consecutive triples to alternating workers and keep every triple cold.
-More than two workers take the newest window of any phase and start cold.
+A worker also takes its windows in order while it lags at most half the ring behind
+(``max_lag``), so that a short stall does not make it jump ahead and start cold; beyond
+that it skips to the newest. More than two workers take the newest window of any phase.
 """
 
 from __future__ import annotations
@@ -151,10 +153,13 @@ def worker_main(
     ring = PairRing.attach(ring_handle, shared_tracker=True)
     stride, phase = share_of_stream(worker_id, n_workers)
     state = ChainState(stride=stride)
+    # In order (warm) while at most half the ring behind; more than two workers share one
+    # phase and take the newest window.
+    max_lag = ring.capacity // 2 if n_workers <= 2 else None
     torn = 0
     try:
         while not stop.is_set():
-            lease = ring.take_newest(3, stride=stride, phase=phase)
+            lease = ring.take_newest(3, stride=stride, phase=phase, max_lag=max_lag)
             if lease is None:
                 time.sleep(0.002)
                 continue
