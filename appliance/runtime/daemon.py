@@ -69,13 +69,20 @@ class _Counters:
     wind_samples: int = 0
 
 
-def _peak_rss_mb() -> str:
-    """Peak resident memory of this process and of its largest ended child (workers)."""
-    import resource
+def _peak_rss_mb(pid: int | None) -> float | None:
+    """Peak resident memory (VmHWM) of a process in MB (None: this one); None if unknown.
 
-    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
-    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
-    return f"daemon {own:.0f} MB, largest worker/child {child:.0f} MB"
+    Read from /proc, not getrusage: a spawned child inherits its parent's ru_maxrss across
+    fork and exec, which would report the daemon's peak for every worker.
+    """
+    try:
+        text = Path(f"/proc/{pid or 'self'}/status").read_text()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024  # kB
+    return None
 
 
 class Appliance:
@@ -428,6 +435,7 @@ class Appliance:
                     t.join(timeout=2.0)
             if reader is not None:
                 reader.stop(timeout=1.0)
+            self._peak_rss_mb = [_peak_rss_mb(None), *(_peak_rss_mb(p.pid) for p in workers)]
             if stop_workers is not None:
                 stop_workers.set()
             for p in workers:
@@ -466,7 +474,12 @@ class Appliance:
             f"{100 * share:.0f} %), skipped {c.skipped_pairs} "
             f"({c.skipped_pairs / elapsed:.1f}/s), failed {c.result_errors}, "
             f"wind samples {c.wind_samples}\n")
-        sys.stderr.write(f"ogiflow: peak RSS {_peak_rss_mb()}\n")
+        peaks = getattr(self, "_peak_rss_mb", [])
+        if peaks:
+            sys.stderr.write("ogiflow: peak RSS (MB): " + ", ".join(
+                f"{name} {'n/a' if mb is None else f'{mb:.0f}'}" for name, mb in zip(
+                    ["daemon", *(f"worker {i}" for i in range(len(peaks) - 1))], peaks,
+                    strict=True)) + "\n")
         comparison = self.publisher.truth_comparison()
         if comparison is not None:
             sys.stderr.write(
