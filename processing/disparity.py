@@ -81,13 +81,7 @@ def _lagged_iterations(
     compact arrays come from the level's :class:`processing.variational.Workspace`.
     """
     w = d.shape[1]
-    for k in range(len(full)):
-        redblack.split_field(full[k], ins[k, 0], ins[k, 1])
-    redblack.split_field(d, ds[0], ds[1])
-    redblack.split_field(dp, ps[0], ps[1])
-    for c in range(2):
-        d0[c][:] = ds[c]
-        dp0[c][:] = ps[c]
+    lagged.begin_warp(full, ins, d, dp, ds, ps, d0, dp0)
     for _ in range(n_inner):
         # Eq. 6 has one penaliser per field: psi(|grad d|^2) and psi(|grad d'|^2), each
         # with its own weight, so the two unknowns diffuse with different edge weights.

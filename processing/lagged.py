@@ -15,6 +15,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from processing import redblack
 from processing.redblack import (
     INV_D1,
     INV_D2,
@@ -206,3 +207,29 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None
             d2 = b22[x] + wl2[x] + wr2[x] + wu2[x] + wd2[x]
             i1[x] = np.float32(1.0) / d1 if d1 > 0 else np.float32(0.0)
             i2[x] = np.float32(1.0) / d2 if d2 > 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True)
+def begin_warp(
+    full: tuple[np.ndarray, ...],
+    ins: np.ndarray,
+    x1_full: np.ndarray,
+    x2_full: np.ndarray,
+    x1: tuple[np.ndarray, np.ndarray],
+    x2: tuple[np.ndarray, np.ndarray],
+    x1_0: tuple[np.ndarray, np.ndarray],
+    x2_0: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """Split a warp's full-grid inputs and both unknowns into compact form, once per warp.
+
+    ``full[k]`` goes to ``ins[k]`` (red, black); the unknowns to ``x1``, ``x2`` and their
+    values at the warp (for the increments of the linearised data terms) to ``x1_0``,
+    ``x2_0``.
+    """
+    for k in range(len(full)):
+        redblack.split_field(full[k], ins[k, 0], ins[k, 1])
+    redblack.split_field(x1_full, x1[0], x1[1])
+    redblack.split_field(x2_full, x2[0], x2[1])
+    for c in range(2):
+        x1_0[c][:] = x1[c]
+        x2_0[c][:] = x2[c]

@@ -144,13 +144,7 @@ def _lagged_iterations(
     :class:`processing.variational.Workspace`.
     """
     w = u.shape[1]
-    for k in range(len(full)):
-        redblack.split_field(full[k], ins[k, 0], ins[k, 1])
-    redblack.split_field(u, us[0], us[1])
-    redblack.split_field(v, vs[0], vs[1])
-    for c in range(2):
-        u0[c][:] = us[c]
-        v0[c][:] = vs[c]
+    lagged.begin_warp(full, ins, u, v, us, vs, u0, v0)
     for _ in range(n_inner):
         # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
         lagged.lagged_psi((us, vs), w, eps, s2, psi)

@@ -101,6 +101,9 @@ def run(args: argparse.Namespace) -> int:
           f"{cold.chain_ms:>10.2f}{cold_ratios['chain']:>8.2f}")
     print("CPU ms: process CPU time of a call (measured; per stage estimated from the "
           "call's CPU/wall ratio)")
+    fb_cpu = st.farneback_cpu_ms
+    print(f"by CPU time (steadier under load): warm chain {warm.cpu_ms / fb_cpu:.2f}x, "
+          f"cold chain {cold.cpu_ms / fb_cpu:.2f}x Farneback")
     print(f"Farneback reference (OpenCV, same differential images): {st.farneback_ms:.2f} ms "
           f"wall, {st.farneback_cpu_ms:.2f} ms CPU")
     print(f"roofline floor of a warm triple: {fl.bytes_per_triple / 1e6:.0f} MB streamed; at "
