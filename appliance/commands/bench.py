@@ -107,9 +107,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"Farneback reference (OpenCV, same differential images): {st.farneback_ms:.2f} ms "
           f"wall, {st.farneback_cpu_ms:.2f} ms CPU")
     print(f"roofline floor of a warm triple: {fl.bytes_per_triple / 1e6:.0f} MB streamed; at "
-          f"{fl.cache_bandwidth_gb_s:.1f} GB/s (cache-resident copy) {fl.cache_floor_ms:.2f} ms "
-          f"= {warm.chain_ms / fl.cache_floor_ms:.1f}x below the warm chain; at "
-          f"{fl.dram_bandwidth_gb_s:.1f} GB/s (main memory) {fl.dram_floor_ms:.2f} ms")
+          f"{fl.cache_bandwidth_gb_s:.1f} GB/s (cache-resident copy) {fl.cache_floor_ms:.2f} ms, "
+          f"at {fl.dram_bandwidth_gb_s:.1f} GB/s (main memory) {fl.dram_floor_ms:.2f} ms; the "
+          f"warm chain's CPU time is {warm.cpu_ms / fl.cache_floor_ms:.1f}x / "
+          f"{warm.cpu_ms / fl.dram_floor_ms:.1f}x these floors")
     for t in through:
         print(f"{t.workers} worker(s): {t.pairs_per_s:.2f} pairs/s "
               f"({t.triples} triples in {t.wall_s:.1f} s; {t.cpu_ms_per_pair:.1f} ms CPU each, "
