@@ -52,6 +52,7 @@ from processing.summary import GasSummary, summarize_frame
 from processing.temporal import (
     ChainState,
     corrected_frames,
+    known_shift01,
     remember,
     solver_options,
     warm_start,
@@ -282,9 +283,10 @@ def compute_scene_flow(
     params : ChainParameters, optional
         Defaults to the paper's values.
     state : ChainState, optional
-        Carried from the previous call on the preceding triple (warm start of the flow,
-        registration shift reuse, tracked normalisation scale); updated in place. The
-        warm start is used only when this triple directly follows the previous one.
+        Carried from the previous call of the same stream (:mod:`processing.temporal`):
+        warm start of w, d and d', frames corrected once, registration shift reuse,
+        tracked normalisation scale; updated in place. The warm start and the shift are
+        used only when this triple follows the previous one by the state's stride.
 
     Returns
     -------
@@ -314,7 +316,7 @@ def compute_scene_flow(
         scale = state.scale.scale
     else:
         scale = initial_scale(left, right, geometry)
-    shift01 = warm.shift01 if warm is not None else (None, None)
+    shift01 = known_shift01(state, times)
 
     t = time.perf_counter()
     # Radiometric correction and rectification once per frame (processing.temporal); the

@@ -102,15 +102,11 @@ class ChainState:
 
 @dataclass(frozen=True)
 class WarmStart:
-    """The previous fields a warm-started call begins from, or ``None`` for a cold start.
-
-    ``shift01`` is the known t0 -> t1 registration shift per camera (only at stride 1).
-    """
+    """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px."""
 
     flow: np.ndarray
     disparity: np.ndarray
     change: np.ndarray
-    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None]
 
 
 def warm_start(state: ChainState | None, times: tuple[float, float, float],
@@ -129,9 +125,19 @@ def warm_start(state: ChainState | None, times: tuple[float, float, float],
     state.warm_starts += 1
     assert state.previous_flow is not None and state.previous_disparity is not None
     assert state.previous_change is not None
-    shift01 = state.shift01 if state.stride == 1 else (None, None)
-    return WarmStart(state.previous_flow, state.previous_disparity, state.previous_change,
-                     shift01)
+    return WarmStart(state.previous_flow, state.previous_disparity, state.previous_change)
+
+
+def known_shift01(state: ChainState | None, times: tuple[float, float, float]
+                  ) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
+    """The t0 -> t1 registration shift per camera if the previous triple measured it.
+
+    Only at stride 1, where the previous triple's t1 -> t2 is this one's t0 -> t1;
+    (None, None) otherwise (pre-processing then estimates it).
+    """
+    if state is None or state.stride != 1 or not state.follows(times):
+        return (None, None)
+    return state.shift01
 
 
 def solver_options(base: Mapping[str, Any], warm: Mapping[str, Any],

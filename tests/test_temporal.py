@@ -126,3 +126,16 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
     assert state.frames_reused == 4  # t1, t2 of both cameras in the second triple
+
+
+def test_known_registration_shift_only_for_the_next_triple_at_stride_1() -> None:
+    from processing.temporal import known_shift01
+
+    state = ChainState()
+    state.previous_times = (0.0, 1.0, 2.0)
+    state.shift01 = ((0.1, 0.0), (0.0, -0.2))
+    assert known_shift01(state, (1.0, 2.0, 3.0)) == ((0.1, 0.0), (0.0, -0.2))
+    assert known_shift01(state, (2.0, 3.0, 4.0)) == (None, None)
+    assert known_shift01(None, (1.0, 2.0, 3.0)) == (None, None)
+    s2 = ChainState(stride=2, previous_times=(0.0, 1.0, 2.0), shift01=state.shift01)
+    assert known_shift01(s2, (2.0, 3.0, 4.0)) == (None, None)  # t1 -> t2 is not t2 -> t3
