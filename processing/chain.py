@@ -14,10 +14,10 @@ Stages (paper section / equation):
    Sobolev denoising, one normalisation to [0, 1] shared by both cameras;
 2. optical flow w_L between the left differential images (4.2, Eq. 5);
 3. initial disparity (SGM or the minimum disparity d0), then joint d_L, d'_L (4.3, Eq. 6);
-4. 3D velocity V and the virtual gas surface (Eq. 4) with dt from the timestamps;
-5. quality U_SF (Eq. 7);
-6. gas segmentation (4.4, Eq. 9) of the left differential image with the flow;
-7. per-frame summary over the gas region, with c_USF (Eq. 8).
+4. 3D velocity V and the virtual gas surface (Eq. 4) with dt from the timestamps, and the
+   quality U_SF (Eq. 7), in one compiled pass (:mod:`processing.pixelwise`);
+5. gas segmentation (4.4, Eq. 9) of the left differential image with the flow;
+6. per-frame summary over the gas region, with c_USF (Eq. 8).
 
 The frame interval of Eq. 4 is the time between the centres of the two differential
 images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timestamps.
@@ -35,94 +35,37 @@ from typing import Any
 import numpy as np
 
 from processing.baselines import sgbm_initial_disparity
-from processing.calibration import StereoCalibration, rectification_maps
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.disparity import joint_disparity
 from processing.optical_flow import brox_optical_flow
+from processing.pixelwise import velocity_and_quality
 from processing.preprocess import (
     DiffScaleTracker,
     PreprocessedTriple,
+    apply_rectification,
     preprocess_stereo,
     radiometric_correction,
 )
-from processing.quality import c_usf, scene_flow_energy
+from processing.quality import c_usf
 from processing.segmentation import segment_gas
+from processing.stereo_geometry import Maps, StereoGeometry
 from processing.summary import GasSummary, summarize_frame
-from processing.velocity import scene_flow_velocity, surface_position
+from processing.temporal import (
+    ChainState,
+    corrected_frames,
+    known_shift01,
+    remember,
+    solver_options,
+    warm_start,
+)
 
-Maps = tuple[np.ndarray, np.ndarray]
+__all__ = ["ChainParameters", "ChainState", "SceneFlowResult", "StereoGeometry",
+           "compute_scene_flow", "frame_interval", "initial_scale"]
 
-
-@dataclass(frozen=True)
-class StereoGeometry:
-    """What the chain needs from a stereo calibration.
-
-    Attributes
-    ----------
-    camera_constant : float
-        Rectified camera constant s in px (Eq. 4).
-    principal_point : (float, float)
-        Rectified principal point (x0, y0) of the left image in px.
-    baseline : float
-        Stereo baseline b in m.
-    image_size : (int, int)
-        (W, H) of the raw frames.
-    maps_left, maps_right : (map_x, map_y) or None
-        Rectification maps (float32, (H, W) each); None when the raw frames are already
-        rectified (ideal or simulated cameras).
-    curve_left, curve_right : CharacteristicCurve or None
-        Radiometric characteristic curves; None means counts are used as they are.
-    """
-
-    camera_constant: float
-    principal_point: tuple[float, float]
-    baseline: float
-    image_size: tuple[int, int]
-    maps_left: Maps | None = None
-    maps_right: Maps | None = None
-    curve_left: CharacteristicCurve | None = None
-    curve_right: CharacteristicCurve | None = None
-
-    @classmethod
-    def from_calibration(cls, calib: StereoCalibration, *, rectify: bool = True) -> StereoGeometry:
-        """Geometry, rectification maps and curves of a loaded calibration file."""
-        maps_l = maps_r = None
-        if rectify:
-            maps = rectification_maps(calib)
-            maps_l, maps_r = (maps.left_x, maps.left_y), (maps.right_x, maps.right_y)
-        radio = calib.radiometric
-        return cls(
-            camera_constant=float(calib.s_px),
-            principal_point=(float(calib.cx_px), float(calib.cy_px)),
-            baseline=float(calib.b_m),
-            image_size=(int(calib.image_size[0]), int(calib.image_size[1])),
-            maps_left=maps_l,
-            maps_right=maps_r,
-            curve_left=radio.left if radio is not None else None,
-            curve_right=radio.right if radio is not None else None,
-        )
-
-    @classmethod
-    def from_synthetic_camera(cls, cam: Mapping[str, Any]) -> StereoGeometry:
-        """Geometry of a synthetic sequence's ideal, rectified camera pair.
-
-        ``cam`` is the ``camera`` entry of a sequence's ``meta.json`` (``s_px``, ``cx_px``,
-        ``cy_px``, ``b_m``, ``width``, ``height``, optional ``k1``/``k2``).
-
-        Raises
-        ------
-        ValueError
-            When the cameras have lens distortion: the frames then need the calibration
-            file the simulator writes, not this ideal geometry.
-        """
-        if cam.get("k1", 0.0) or cam.get("k2", 0.0):
-            raise ValueError(
-                f"the synthetic cameras have lens distortion (k1={cam.get('k1')}, "
-                f"k2={cam.get('k2')}); use the matching calibration file instead")
-        return cls(camera_constant=float(cam["s_px"]),
-                   principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
-                   baseline=float(cam["b_m"]),
-                   image_size=(int(cam["width"]), int(cam["height"])))
+#: Solver options on a warm start (see ChainParameters); chosen by measurement, README.
+WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
+WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
+                                              "n_inner_finest": 2, "n_sor": 8}
 
 
 @dataclass(frozen=True)
@@ -160,10 +103,13 @@ class ChainParameters:
         Forgetting factor of the tracked scale (0.02 at 30 Hz ~ 1.7 s memory).
     warm_start : bool
         Start the flow and the disparity from the previous triple's results (needs a
-        state; only when this triple directly follows it). The SGM or d0 initialisation
-        is then used only on a cold start.
+        state; only when this triple follows it, :mod:`processing.temporal`). The SGM or
+        d0 initialisation is then used only on a cold start.
     flow_options, disparity_options, segmentation_options : mapping
         Further keyword arguments of the three solvers (iteration counts, pyramid ...).
+    warm_flow_options, warm_disparity_options : mapping
+        Overrides of ``flow_options`` / ``disparity_options`` on a warm start: the
+        previous fields are already close, so fewer pyramid levels and iterations do.
     """
 
     alpha: float = 0.05
@@ -183,6 +129,10 @@ class ChainParameters:
     flow_options: Mapping[str, Any] = field(default_factory=dict)
     disparity_options: Mapping[str, Any] = field(default_factory=dict)
     segmentation_options: Mapping[str, Any] = field(default_factory=dict)
+    warm_flow_options: Mapping[str, Any] = field(
+        default_factory=lambda: dict(WARM_FLOW_OPTIONS))
+    warm_disparity_options: Mapping[str, Any] = field(
+        default_factory=lambda: dict(WARM_DISPARITY_OPTIONS))
 
     def __post_init__(self) -> None:
         if self.disparity_init not in ("sgm", "d0"):
@@ -215,20 +165,6 @@ class ChainParameters:
                 f"known: {', '.join(names)}"
             )
         return cls(**dict(values))
-
-
-@dataclass
-class ChainState:
-    """What one call leaves for the next call on the following triple (warm start).
-
-    The daemon keeps one per worker; offline evaluation may pass None (cold start).
-    """
-
-    scale: DiffScaleTracker | None = None
-    previous_flow: np.ndarray | None = None
-    previous_disparity: np.ndarray | None = None
-    previous_times: tuple[float, float, float] | None = None
-    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
 
 
 @dataclass(frozen=True)
@@ -268,6 +204,8 @@ class SceneFlowResult:
         non-zero means the background offers no static texture to register on.
     timings_ms : dict
         Wall time per stage in ms, and "total".
+    warm : bool
+        True when the solvers started from the previous triple (:mod:`processing.temporal`).
     """
 
     times_s: tuple[float, float, float]
@@ -290,6 +228,7 @@ class SceneFlowResult:
     shifts_right: tuple[tuple[float, float], tuple[float, float]]
     rejected_shifts: int
     timings_ms: dict[str, float]
+    warm: bool = False
 
 
 def frame_interval(times_s: Sequence[float]) -> float:
@@ -350,9 +289,10 @@ def compute_scene_flow(
     params : ChainParameters, optional
         Defaults to the paper's values.
     state : ChainState, optional
-        Carried from the previous call on the preceding triple (warm start of the flow,
-        registration shift reuse, tracked normalisation scale); updated in place. The
-        warm start is used only when this triple directly follows the previous one.
+        Carried from the previous call of the same stream (:mod:`processing.temporal`):
+        warm start of w, d and d', frames corrected once, registration shift reuse,
+        tracked normalisation scale; updated in place. The warm start and the shift are
+        used only when this triple follows the previous one by the state's stride.
 
     Returns
     -------
@@ -375,65 +315,66 @@ def compute_scene_flow(
         timings[name] = (now - t) * 1e3
         return now
 
-    consecutive = (
-        state is not None
-        and state.previous_times is not None
-        and state.previous_times[1:] == times[:2]
-    )
+    warm = warm_start(state, times, params.warm_start)
     if params.diff_scale is not None:
         scale = params.diff_scale
     elif state is not None and state.scale is not None:
         scale = state.scale.scale
     else:
         scale = initial_scale(left, right, geometry)
-    shift01 = state.shift01 if (state is not None and consecutive) else (None, None)
+    shift01 = known_shift01(state, times)
 
     t = time.perf_counter()
+    # Radiometric correction and rectification once per frame (processing.temporal); the
+    # corrected frames then go through pre-processing as they are (no curve, no maps).
+    corrected = [
+        corrected_frames(state, cam, frames, times,
+                         lambda f, curve=curve, maps=maps: _correct(f, curve, maps))
+        for cam, (frames, curve, maps) in enumerate((
+            (left, geometry.curve_left, geometry.maps_left),
+            (right, geometry.curve_right, geometry.maps_right)))
+    ]
     pl, pr = preprocess_stereo(
-        left, right, scale=scale,
-        curves=(geometry.curve_left, geometry.curve_right),
-        maps=(geometry.maps_left, geometry.maps_right),
-        register=params.register, denoise_lambda=params.denoise_lambda, shift01=shift01,
+        corrected[0], corrected[1], scale=scale, register=params.register,
+        denoise_lambda=params.denoise_lambda, shift01=shift01,
         max_shift_px=params.max_jitter_px,
     )
     t = lap("preprocess", t)
 
-    init_flow = None
-    if params.warm_start and consecutive and state is not None:
-        init_flow = state.previous_flow
-    flow = brox_optical_flow(pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
-                             initial_flow=init_flow, **params.flow_options)
+    flow = brox_optical_flow(
+        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
+        initial_flow=None if warm is None else warm.flow,
+        **solver_options(params.flow_options, params.warm_flow_options, warm is not None))
     t = lap("flow", t)
 
-    init_d = None
-    if params.warm_start and consecutive and state is not None:
-        # The disparity of the same scene one frame earlier is far closer than any SGM
-        # estimate on differential images, and costs nothing.
-        init_d = state.previous_disparity
-    if init_d is None and params.disparity_init == "sgm":
+    if warm is not None:
+        # The fields of the same scene one triple earlier are far closer than any SGM
+        # estimate on differential images, and cost nothing.
+        init_d, init_dd = warm.disparity, warm.change
+    elif params.disparity_init == "sgm":
         # The search starts at d0: a range below the gas's disparity leaves SGM nothing to
         # find, and the joint solver, started far off, does not converge (d' bias).
         init_d = sgbm_initial_disparity(pl.diff0, pr.diff0,
                                         min_disparity=int(np.floor(params.d0)),
                                         num_disparities=params.sgm_num_disparities,
                                         fallback=params.d0)
+        init_dd = None
+    else:
+        init_d = init_dd = None
     t = lap("disparity_init", t)
-    d, dd = joint_disparity(pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow,
-                            gamma1=params.gamma1, gamma2=params.gamma2, d0=params.d0,
-                            initial_disparity=init_d, **params.disparity_options)
+    d, dd = joint_disparity(
+        pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow, gamma1=params.gamma1,
+        gamma2=params.gamma2, d0=params.d0, initial_disparity=init_d, initial_change=init_dd,
+        **solver_options(params.disparity_options, params.warm_disparity_options,
+                         warm is not None))
     t = lap("disparity", t)
 
-    pp, s, b = geometry.principal_point, geometry.camera_constant, geometry.baseline
-    velocity, valid = scene_flow_velocity(flow, d, dd, principal_point=pp, camera_constant=s,
-                                          baseline=b, dt=dt)
-    position, pos_valid = surface_position(d, principal_point=pp, camera_constant=s,
-                                           baseline=b)
-    valid &= pos_valid
-    t = lap("velocity", t)
-
-    u_sf, u_sf_valid = scene_flow_energy(pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow, d, dd,
-                                         gamma1=params.gamma1, gamma2=params.gamma2)
-    t = lap("quality", t)
+    # Velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass.
+    velocity, position, valid, u_sf, u_sf_valid = velocity_and_quality(
+        flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
+        principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
+        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2)
+    t = lap("velocity_quality", t)
 
     seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
     t = lap("segmentation", t)
@@ -444,25 +385,29 @@ def compute_scene_flow(
     timings["total"] = (time.perf_counter() - t_start) * 1e3
 
     if state is not None:
-        _update_state(state, params, scale, pl, pr, flow, d, times)
+        _update_state(state, params, scale, pl, pr)
+        remember(state, times=times, flow=flow, disparity=d, change=dd,
+                 shifts12=(pl.shifts[1], pr.shifts[1]))
     return SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
         valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=seg.mask, phi=seg.phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=timings,
+        warm=warm is not None,
     )
 
 
+def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None
+             ) -> np.ndarray:
+    """Steps 1-2 of :mod:`processing.preprocess` for one raw frame."""
+    img = radiometric_correction(frame, curve)
+    return img if maps is None else apply_rectification(img, maps[0], maps[1])
+
+
 def _update_state(state: ChainState, params: ChainParameters, scale: float,
-                  pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
-                  d: np.ndarray, times: tuple[float, float, float]) -> None:
+                  pl: PreprocessedTriple, pr: PreprocessedTriple) -> None:
     if params.diff_scale is None:
         if state.scale is None:
             state.scale = DiffScaleTracker(scale, forgetting=params.scale_forgetting)
         state.scale.update(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
-    state.previous_flow = flow
-    state.previous_disparity = d
-    state.previous_times = times
-    # The t1 -> t2 shift of this triple is the t0 -> t1 shift of the next one.
-    state.shift01 = (pl.shifts[1], pr.shifts[1])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numba
 import numpy as np
@@ -37,11 +39,77 @@ def inside_mask(map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray:
     return inside.astype(np.float32)
 
 
+@functools.lru_cache(maxsize=64)
 def pixel_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates (xx, yy), each (H, W) float32."""
+    """Pixel coordinates (xx, yy), each (H, W) float32, read-only (cached per shape: every
+    warp of every pyramid level needs them)."""
     h, w = shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xx.flags.writeable = False
+    yy.flags.writeable = False
     return xx, yy
+
+
+_C05 = np.float32(0.5)
+_C15 = np.float32(1.5)
+_C25 = np.float32(2.5)
+_C2 = np.float32(2.0)
+_C45 = np.float32(4.5)
+_C5 = np.float32(5.0)
+_C4 = np.float32(4.0)
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+
+
+@numba.njit(inline="always")
+def _weights(t: float) -> tuple[float, float, float, float]:
+    """Catmull-Rom (Keys, a = -0.5) weights of the 4 taps at fraction t in [0, 1)."""
+    t2 = t * t
+    t3 = t2 * t
+    return (-_C05 * t3 + t2 - _C05 * t, _C15 * t3 - _C25 * t2 + _ONE,
+            -_C15 * t3 + _C2 * t2 + _C05 * t, _C05 * t3 - _C05 * t2)
+
+
+@numba.njit(inline="always")
+def _slopes(t: float) -> tuple[float, float, float, float]:
+    """d/dt of :func:`_weights`: the exact derivative of the interpolant."""
+    t2 = t * t
+    return (-_C15 * t2 + _C2 * t - _C05, _C45 * t2 - _C5 * t, -_C45 * t2 + _C4 * t + _C05,
+            _C15 * t2 - t)
+
+
+@numba.njit(inline="always")
+def _columns(img: np.ndarray, ix: int, iy: int, ty: float) -> tuple[float, float, float, float]:
+    """The 4 column values at rows iy-1..iy+2 interpolated vertically (border replicated)."""
+    h, w = img.shape
+    wy0, wy1, wy2, wy3 = _weights(ty)
+    x0 = max(ix - 1, 0)
+    x2 = min(ix + 1, w - 1)
+    x3 = min(ix + 2, w - 1)
+    r0 = img[max(iy - 1, 0)]
+    r1 = img[iy]
+    r2 = img[min(iy + 1, h - 1)]
+    r3 = img[min(iy + 2, h - 1)]
+    return (wy0 * r0[x0] + wy1 * r1[x0] + wy2 * r2[x0] + wy3 * r3[x0],
+            wy0 * r0[ix] + wy1 * r1[ix] + wy2 * r2[ix] + wy3 * r3[ix],
+            wy0 * r0[x2] + wy1 * r1[x2] + wy2 * r2[x2] + wy3 * r3[x2],
+            wy0 * r0[x3] + wy1 * r1[x3] + wy2 * r2[x3] + wy3 * r3[x3])
+
+
+@numba.njit(inline="always")
+def catmull_rom_at(img: np.ndarray, x: float, y: float) -> float:
+    """Catmull-Rom sample of ``img`` (H, W) at (x, y), border replicated (float32 maths).
+
+    The value path of :func:`warp_dx_catmull_rom` for one point, for fused kernels.
+    """
+    h, w = img.shape
+    fx = min(max(x, _ZERO), np.float32(w - 1))
+    fy = min(max(y, _ZERO), np.float32(h - 1))
+    ix = int(fx)
+    iy = int(fy)
+    q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
+    wx0, wx1, wx2, wx3 = _weights(fx - ix)
+    return wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -51,64 +119,26 @@ def _catmull_rom_dx_rows(
     h, w = img.shape
     hm = np.float32(h - 1)
     wm = np.float32(w - 1)
-    zero = np.float32(0.0)
-    c05 = np.float32(0.5)
-    c15 = np.float32(1.5)
-    c25 = np.float32(2.5)
-    c2 = np.float32(2.0)
-    c45 = np.float32(4.5)
-    c5 = np.float32(5.0)
-    c4 = np.float32(4.0)
-    one = np.float32(1.0)
     for y in range(h):
         rx = map_x[y]
         ry = map_y[y]
         o = out[y]
         od = out_dx[y]
         for x in range(w):
-            fx = min(max(rx[x], zero), wm)
-            fy = min(max(ry[x], zero), hm)
-            inside_x = rx[x] == fx  # replicated border: the sample is constant along x
+            fx = min(max(rx[x], _ZERO), wm)
+            fy = min(max(ry[x], _ZERO), hm)
             ix = int(fx)
             iy = int(fy)
             tx = fx - ix
-            ty = fy - iy
-            tx2 = tx * tx
-            tx3 = tx2 * tx
-            ty2 = ty * ty
-            ty3 = ty2 * ty
-            wx0 = -c05 * tx3 + tx2 - c05 * tx
-            wx1 = c15 * tx3 - c25 * tx2 + one
-            wx2 = -c15 * tx3 + c2 * tx2 + c05 * tx
-            wx3 = c05 * tx3 - c05 * tx2
-            # d/dtx of the Catmull-Rom weights: the exact x-derivative of the interpolant.
-            dx0 = -c15 * tx2 + c2 * tx - c05
-            dx1 = c45 * tx2 - c5 * tx
-            dx2 = -c45 * tx2 + c4 * tx + c05
-            dx3 = c15 * tx2 - tx
-            if not inside_x:
-                dx0 = zero
-                dx1 = zero
-                dx2 = zero
-                dx3 = zero
-            wy0 = -c05 * ty3 + ty2 - c05 * ty
-            wy1 = c15 * ty3 - c25 * ty2 + one
-            wy2 = -c15 * ty3 + c2 * ty2 + c05 * ty
-            wy3 = c05 * ty3 - c05 * ty2
-            x0 = max(ix - 1, 0)
-            x2 = min(ix + 1, w - 1)
-            x3 = min(ix + 2, w - 1)
-            r0 = img[max(iy - 1, 0)]
-            r1 = img[iy]
-            r2 = img[min(iy + 1, h - 1)]
-            r3 = img[min(iy + 2, h - 1)]
             # Columns first (vertical interpolation), then the two horizontal kernels.
-            q0 = wy0 * r0[x0] + wy1 * r1[x0] + wy2 * r2[x0] + wy3 * r3[x0]
-            q1 = wy0 * r0[ix] + wy1 * r1[ix] + wy2 * r2[ix] + wy3 * r3[ix]
-            q2 = wy0 * r0[x2] + wy1 * r1[x2] + wy2 * r2[x2] + wy3 * r3[x2]
-            q3 = wy0 * r0[x3] + wy1 * r1[x3] + wy2 * r2[x3] + wy3 * r3[x3]
+            q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
+            wx0, wx1, wx2, wx3 = _weights(tx)
             o[x] = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-            od[x] = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+            if rx[x] == fx:
+                dx0, dx1, dx2, dx3 = _slopes(tx)
+                od[x] = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+            else:  # replicated border: the sample is constant along x
+                od[x] = _ZERO
 
 
 def warp_dx_catmull_rom(
@@ -135,4 +165,46 @@ def warp_dx_catmull_rom(
     _catmull_rom_dx_rows(np.ascontiguousarray(image, dtype=np.float32),
                          np.ascontiguousarray(map_x, dtype=np.float32),
                          np.ascontiguousarray(map_y, dtype=np.float32), out, out_dx)
+    return out, out_dx
+
+
+@numba.njit(cache=True, fastmath=True)
+def _catmull_rom_dx_along_rows(img: np.ndarray, map_x: np.ndarray, out: np.ndarray,
+                               out_dx: np.ndarray) -> None:
+    h, w = img.shape
+    wm = np.float32(w - 1)
+    for y in range(h):
+        rx = map_x[y]
+        r = img[y]
+        o = out[y]
+        od = out_dx[y]
+        for x in range(w):
+            fx = min(max(rx[x], _ZERO), wm)
+            ix = int(fx)
+            tx = fx - ix
+            q0 = r[max(ix - 1, 0)]
+            q1 = r[ix]
+            q2 = r[min(ix + 1, w - 1)]
+            q3 = r[min(ix + 2, w - 1)]
+            wx0, wx1, wx2, wx3 = _weights(tx)
+            o[x] = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
+            if rx[x] == fx:
+                dx0, dx1, dx2, dx3 = _slopes(tx)
+                od[x] = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+            else:
+                od[x] = _ZERO
+
+
+def warp_dx_catmull_rom_rows(image: np.ndarray, map_x: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`warp_dx_catmull_rom` for samples on the pixel rows (map_y = y).
+
+    With an integer row the vertical Catmull-Rom weights are exactly (0, 1, 0, 0), so the
+    result is the same as the general warp's, from 4 samples instead of 16 (the right image
+    at t0 is sampled this way in Eq. 3a: only the disparity moves it).
+    """
+    out = np.empty(map_x.shape, np.float32)
+    out_dx = np.empty(map_x.shape, np.float32)
+    _catmull_rom_dx_along_rows(np.ascontiguousarray(image, dtype=np.float32),
+                               np.ascontiguousarray(map_x, dtype=np.float32), out, out_dx)
     return out, out_dx

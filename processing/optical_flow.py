@@ -14,11 +14,10 @@ increment with red-black SOR (:mod:`processing.redblack`).
 
 from __future__ import annotations
 
-import cv2
 import numba
 import numpy as np
 
-from processing import derivatives, pyramid, redblack
+from processing import derivatives, lagged, redblack, variational
 from processing.validation import (
     MIN_IMAGE_SIZE,
     as_float_image,
@@ -92,7 +91,8 @@ def _compact_data_terms(
             ey = ryz[x] + rxy[x] * du + ryy[x] * dv
             pd[x] = rv[x] / np.sqrt(e * e + e2)
             pg[x] = bt * rv[x] / np.sqrt(ex * ex + ey * ey + e2)
-        o11, o12, o22, o1, o2 = a11[y], coef[1, y], a22[y], coef[3, y], coef[4, y]
+        o11, o22 = a11[y], a22[y]
+        o12, o1, o2 = coef[redblack.A12, y], coef[redblack.R1, y], coef[redblack.R2, y]
         for x in range(w):
             gx = rx[x]
             gy = ry[x]
@@ -114,17 +114,20 @@ def _compact_data_terms(
 
 @numba.njit(cache=True)
 def _lagged_iterations(
-    iz: np.ndarray,
-    ix: np.ndarray,
-    iy: np.ndarray,
-    ixz: np.ndarray,
-    iyz: np.ndarray,
-    ixx: np.ndarray,
-    ixy: np.ndarray,
-    iyy: np.ndarray,
-    valid: np.ndarray,
+    full: tuple[np.ndarray, ...],
     u: np.ndarray,
     v: np.ndarray,
+    ins: np.ndarray,
+    us: tuple[np.ndarray, np.ndarray],
+    vs: tuple[np.ndarray, np.ndarray],
+    u0: tuple[np.ndarray, np.ndarray],
+    v0: tuple[np.ndarray, np.ndarray],
+    coefs: tuple[np.ndarray, np.ndarray],
+    masks: tuple[np.ndarray, np.ndarray],
+    a11: tuple[np.ndarray, np.ndarray],
+    a22: tuple[np.ndarray, np.ndarray],
+    psi: tuple[np.ndarray, np.ndarray],
+    s2: np.ndarray,
     alpha: float,
     beta: float,
     eps: float,
@@ -134,41 +137,28 @@ def _lagged_iterations(
 ) -> None:
     """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (u, v) in place.
 
-    Everything stays in compact red-black layout for the whole warp: inputs are split
-    once, psi', edge weights and data terms are computed per colour, and the unknowns
-    are merged back only at the end.
+    Everything stays in compact red-black layout for the whole warp: the nine full-grid
+    inputs ``full`` (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid) are split once into
+    ``ins``, psi', edge weights and data terms are computed per colour, and the unknowns
+    are merged back only at the end. All compact arrays come from the level's
+    :class:`processing.variational.Workspace`.
     """
-    h, w = u.shape
-    inputs = [redblack.split_new(a) for a in (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid)]
-    ur, ub = redblack.split_new(u)
-    vr, vb = redblack.split_new(v)
-    u0 = (ur.copy(), ub.copy())
-    v0 = (vr.copy(), vb.copy())
-    masks = redblack.border_masks(h, w)
-    coefs = redblack.empty_system(h, w)
-    cshape = ur.shape
-    a11 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
-    a22 = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
-    s2 = np.zeros(cshape, np.float32)
-    psi = (np.zeros(cshape, np.float32), np.zeros(cshape, np.float32))
-    us = (ur, ub)
-    vs = (vr, vb)
+    w = u.shape[1]
+    lagged.begin_warp(full, ins, u, v, us, vs, u0, v0)
     for _ in range(n_inner):
         # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
-        redblack.lagged_psi((us, vs), w, eps, s2, psi)
+        lagged.lagged_psi((us, vs), w, eps, s2, psi)
         for c in range(2):
             coef = coefs[c]
-            redblack.compact_edge_weights(psi[c], psi[1 - c], masks[c], alpha, c, coef,
-                                          redblack.W1)
+            lagged.edge_weights(psi[c], psi[1 - c], masks[c], alpha, c, coef, redblack.W1)
             coef[redblack.W2:redblack.W2 + 4] = coef[redblack.W1:redblack.W1 + 4]
-            _compact_data_terms(inputs[0][c], inputs[1][c], inputs[2][c], inputs[3][c],
-                                inputs[4][c], inputs[5][c], inputs[6][c], inputs[7][c],
-                                inputs[8][c], us[c], vs[c], u0[c], v0[c], beta, eps, coef,
-                                a11[c], a22[c])
-            redblack.finish_diagonals(coef, a11[c], a22[c])
-        redblack.solve_sor(coefs[0], coefs[1], ur, ub, vr, vb, n_sor, omega)
-    redblack.merge_field(ur, ub, u)
-    redblack.merge_field(vr, vb, v)
+            _compact_data_terms(ins[0, c], ins[1, c], ins[2, c], ins[3, c], ins[4, c],
+                                ins[5, c], ins[6, c], ins[7, c], ins[8, c], us[c], vs[c],
+                                u0[c], v0[c], beta, eps, coef, a11[c], a22[c])
+            lagged.finish_diagonals(coef, a11[c], a22[c])
+        redblack.solve_sor(coefs[0], coefs[1], us[0], us[1], vs[0], vs[1], n_sor, omega)
+    redblack.merge_field(us[0], us[1], u)
+    redblack.merge_field(vs[0], vs[1], v)
 
 
 def _level_flow(
@@ -205,8 +195,10 @@ def _level_flow(
         ixx = 0.5 * (i1xx + i0xx)
         ixy = 0.5 * (i1xy + i0xy)
         iyy = 0.5 * (i1yy + i0yy)
-        _lagged_iterations(iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid, u, v,
-                           alpha, beta, eps, n_inner, n_sor, omega)
+        ws = variational.workspace(i0.shape)
+        _lagged_iterations((iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid), u, v, ws.inputs,
+                           ws.x1, ws.x2, ws.x1_0, ws.x2_0, ws.coefs, ws.masks, ws.a11, ws.a22,
+                           ws.psi1, ws.s2, alpha, beta, eps, n_inner, n_sor, omega)
 
 
 def brox_optical_flow(
@@ -224,6 +216,7 @@ def brox_optical_flow(
     omega: float = 1.99,
     presmooth_sigma: float = 0.6,
     initial_flow: np.ndarray | None = None,
+    n_levels: int | None = None,
 ) -> np.ndarray:
     """Optical flow from ``image0`` to ``image1`` by minimising the paper's Eq. 5.
 
@@ -257,7 +250,11 @@ def brox_optical_flow(
         Gaussian pre-smoothing of both images in px (0 disables).
     initial_flow : ndarray, shape (H, W, 2), optional
         Initial flow in px (e.g. the previous frame's result for a warm start). It is
-        resampled to the coarsest level and refined from there.
+        resampled to the coarsest level used and refined from there.
+    n_levels : int, optional
+        Use only the finest ``n_levels`` pyramid levels (default: all down to
+        ``min_level_size``). A warm start from the previous frame's flow is already close
+        and needs no coarse levels.
 
     Returns
     -------
@@ -280,36 +277,21 @@ def brox_optical_flow(
     check_same_shape(i0, i1, "image0", "image1")
     check_positive(alpha, "alpha")
     check_positive(beta, "beta", allow_zero=True)
-    check_positive(eps, "eps")
-    check_positive(presmooth_sigma, "presmooth_sigma", allow_zero=True)
-    if not 0.0 < pyramid_factor < 1.0:
-        raise ValueError(f"pyramid_factor must be in (0, 1), got {pyramid_factor!r}")
-    if not 0.0 < omega < 2.0:
-        raise ValueError(f"omega must be in (0, 2), got {omega!r}")
-    for name, n in (("n_warps", n_warps), ("n_inner", n_inner), ("n_sor", n_sor),
-                    ("min_level_size", min_level_size)):
-        if int(n) != n or n < 1:
-            raise ValueError(f"{name} must be a positive integer, got {n!r}")
+    variational.check_options(eps=eps, pyramid_factor=pyramid_factor, omega=omega,
+                              presmooth_sigma=presmooth_sigma, n_levels=n_levels,
+                              n_warps=n_warps, n_inner=n_inner, n_sor=n_sor,
+                              min_level_size=min_level_size)
     init = None if initial_flow is None else as_flow_field(initial_flow, i0.shape, "initial_flow")
+    shapes, (p0, p1) = variational.build_pyramids(
+        (i0, i1), pyramid_factor=pyramid_factor, min_level_size=min_level_size,
+        presmooth_sigma=presmooth_sigma, n_levels=n_levels)
+    flow = np.zeros((*shapes[-1], 2), np.float32) if init is None else init
 
-    if presmooth_sigma > 0:
-        i0 = cv2.GaussianBlur(i0, (0, 0), presmooth_sigma, borderType=cv2.BORDER_REFLECT)
-        i1 = cv2.GaussianBlur(i1, (0, 0), presmooth_sigma, borderType=cv2.BORDER_REFLECT)
-    shapes = pyramid.pyramid_shapes(i0.shape, pyramid_factor, min(min_level_size, min(i0.shape)))
-    p0 = pyramid.image_pyramid(i0, shapes)
-    p1 = pyramid.image_pyramid(i1, shapes)
-
-    coarsest = shapes[-1]
-    if init is None:
-        flow = np.zeros((*coarsest, 2), np.float32)
-    else:
-        flow = pyramid.resize_field(init, coarsest, is_motion=True)
-    for level in range(len(shapes) - 1, -1, -1):
-        if flow.shape[:2] != shapes[level]:
-            flow = pyramid.resize_field(flow, shapes[level], is_motion=True)
-        u = np.ascontiguousarray(flow[..., 0])
-        v = np.ascontiguousarray(flow[..., 1])
+    def solve_level(level: int, fields: variational.Fields) -> variational.Fields:
+        u = np.ascontiguousarray(fields[0][..., 0])
+        v = np.ascontiguousarray(fields[0][..., 1])
         _level_flow(p0[level], p1[level], u, v, alpha=alpha, beta=beta, eps=eps,
                     n_warps=n_warps, n_inner=n_inner, n_sor=n_sor, omega=omega)
-        flow = np.stack([u, v], axis=-1)
-    return flow.astype(np.float32, copy=False)
+        return (np.stack([u, v], axis=-1),)
+
+    return variational.coarse_to_fine(shapes, (flow,), solve_level)[0]

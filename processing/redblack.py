@@ -28,9 +28,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+# Planes of a colour's coefficient array. Numba reads module-level ints as compile-time
+# constants, so the kernels index with these names at no cost.
 INV_D1, A12, INV_D2, R1, R2 = 0, 1, 2, 3, 4
-W1 = 5  # planes 5..8: weights of unknown 1 towards left, right, up, down
-W2 = 9  # planes 9..12: weights of unknown 2 towards left, right, up, down
+#: First of the four edge-weight planes of unknown 1 (left, right, up, down follow).
+W1 = 5
+W1_LEFT, W1_RIGHT, W1_UP, W1_DOWN = 5, 6, 7, 8
+#: First of the four edge-weight planes of unknown 2.
+W2 = 9
+W2_LEFT, W2_RIGHT, W2_UP, W2_DOWN = 9, 10, 11, 12
 N_PLANES = 13
 
 
@@ -43,7 +49,7 @@ def compact_shape(height: int, width: int) -> tuple[int, int]:
 @numba.njit(cache=True)
 def empty_system(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Allocate the red and black coefficient arrays, shape (13, H+2, W2+2) each."""
-    shape = (13, height + 2, (width + 1) // 2 + 2)
+    shape = (N_PLANES, height + 2, (width + 1) // 2 + 2)
     return np.zeros(shape, np.float32), np.zeros(shape, np.float32)
 
 
@@ -76,19 +82,19 @@ def _pack_colour(
             r2w = wx2[y, x]
             u2 = wy2[y - 1, x]
             d2 = wy2[y, x]
-            c[0, yc, xc] = 1.0 / (a11[y, x] + l1 + r1w + u1 + d1)
-            c[1, yc, xc] = a12[y, x]
-            c[2, yc, xc] = 1.0 / (a22[y, x] + l2 + r2w + u2 + d2)
-            c[3, yc, xc] = r1[y, x]
-            c[4, yc, xc] = r2[y, x]
-            c[5, yc, xc] = l1
-            c[6, yc, xc] = r1w
-            c[7, yc, xc] = u1
-            c[8, yc, xc] = d1
-            c[9, yc, xc] = l2
-            c[10, yc, xc] = r2w
-            c[11, yc, xc] = u2
-            c[12, yc, xc] = d2
+            c[INV_D1, yc, xc] = 1.0 / (a11[y, x] + l1 + r1w + u1 + d1)
+            c[A12, yc, xc] = a12[y, x]
+            c[INV_D2, yc, xc] = 1.0 / (a22[y, x] + l2 + r2w + u2 + d2)
+            c[R1, yc, xc] = r1[y, x]
+            c[R2, yc, xc] = r2[y, x]
+            c[W1_LEFT, yc, xc] = l1
+            c[W1_RIGHT, yc, xc] = r1w
+            c[W1_UP, yc, xc] = u1
+            c[W1_DOWN, yc, xc] = d1
+            c[W2_LEFT, yc, xc] = l2
+            c[W2_RIGHT, yc, xc] = r2w
+            c[W2_UP, yc, xc] = u2
+            c[W2_DOWN, yc, xc] = d2
 
 
 @numba.njit(cache=True)
@@ -142,16 +148,6 @@ def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
 
 
 @numba.njit(cache=True)
-def split_new(field: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`split_field` into newly allocated compact arrays (red, black)."""
-    h, w = field.shape
-    red = np.zeros((h + 2, (w + 1) // 2 + 2), np.float32)
-    black = np.zeros_like(red)
-    split_field(field, red, black)
-    return red, black
-
-
-@numba.njit(cache=True)
 def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
     """Gather compact red/black arrays back into a full-grid field ``out`` (H, W), in place."""
     h, w = out.shape
@@ -187,19 +183,19 @@ def _sweep(
     for yc in range(1, h + 1):
         off = (yc - 1 + colour) & 1
         e = n + 1
-        inv1 = coef[0, yc, 1:e]
-        a12 = coef[1, yc, 1:e]
-        inv2 = coef[2, yc, 1:e]
-        r1 = coef[3, yc, 1:e]
-        r2 = coef[4, yc, 1:e]
-        w1l = coef[5, yc, 1:e]
-        w1r = coef[6, yc, 1:e]
-        w1u = coef[7, yc, 1:e]
-        w1d = coef[8, yc, 1:e]
-        w2l = coef[9, yc, 1:e]
-        w2r = coef[10, yc, 1:e]
-        w2u = coef[11, yc, 1:e]
-        w2d = coef[12, yc, 1:e]
+        inv1 = coef[INV_D1, yc, 1:e]
+        a12 = coef[A12, yc, 1:e]
+        inv2 = coef[INV_D2, yc, 1:e]
+        r1 = coef[R1, yc, 1:e]
+        r2 = coef[R2, yc, 1:e]
+        w1l = coef[W1_LEFT, yc, 1:e]
+        w1r = coef[W1_RIGHT, yc, 1:e]
+        w1u = coef[W1_UP, yc, 1:e]
+        w1d = coef[W1_DOWN, yc, 1:e]
+        w2l = coef[W2_LEFT, yc, 1:e]
+        w2r = coef[W2_RIGHT, yc, 1:e]
+        w2u = coef[W2_UP, yc, 1:e]
+        w2d = coef[W2_DOWN, yc, 1:e]
         u = x1[yc, 1:e]
         v = x2[yc, 1:e]
         ul = x1o[yc, off:off + n]
@@ -247,189 +243,3 @@ def solve_sor(
     for _ in range(n_iter):
         _sweep(red, x1r, x2r, x1b, x2b, 0, omega)
         _sweep(black, x1b, x2b, x1r, x2r, 1, omega)
-
-
-# --- Working directly in the compact domain --------------------------------------------
-# Assembling a system on the full grid and scattering it with pack_system costs about as
-# much as ten SOR iterations (stride-2 scatter of 13 planes). The helpers below let a
-# solver keep its unknowns and inputs compact for a whole warp and compute psi', edge
-# weights and data terms per colour with contiguous, vectorisable row loops.
-
-
-@numba.njit(cache=True)
-def border_masks(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Edge-existence masks (4, H+2, W2+2) for red and black: left, right, up, down.
-
-    1 where the pixel has that neighbour inside the image, 0 at image borders, in the
-    halo and at padding entries (odd W), so that multiplying edge weights by the mask
-    imposes Neumann boundary conditions and keeps padding entries decoupled.
-    """
-    shape = (4, height + 2, (width + 1) // 2 + 2)
-    red = np.zeros(shape, np.float32)
-    black = np.zeros(shape, np.float32)
-    for y in range(height):
-        for x in range(width):
-            m = red if (x + y) % 2 == 0 else black
-            yc = y + 1
-            xc = x // 2 + 1
-            m[0, yc, xc] = 1.0 if x > 0 else 0.0
-            m[1, yc, xc] = 1.0 if x < width - 1 else 0.0
-            m[2, yc, xc] = 1.0 if y > 0 else 0.0
-            m[3, yc, xc] = 1.0 if y < height - 1 else 0.0
-    return red, black
-
-
-@numba.njit(cache=True)
-def fill_neumann_ghosts(red: np.ndarray, black: np.ndarray, width: int) -> None:
-    """Copy border pixels into the halo neighbours that central differences read.
-
-    After this, a centred difference at a border pixel equals half the one-sided
-    difference (zero normal derivative), and no halo value is stale.
-    """
-    h = red.shape[0] - 2
-    for yc in range(1, h + 1):
-        y = yc - 1
-        # Pixel x = 0 has colour y & 1; its left neighbour is column 0 of the other colour.
-        own, other = (red, black) if (y & 1) == 0 else (black, red)
-        other[yc, 0] = own[yc, 1]
-        # Pixel x = W-1: colour (W-1+y) & 1, compact column (W-1)//2 + 1, right neighbour
-        # at that column + ((W-1) & 1) in the other colour.
-        xc = (width - 1) // 2 + 1
-        own, other = (red, black) if ((width - 1 + y) & 1) == 0 else (black, red)
-        other[yc, xc + ((width - 1) & 1)] = own[yc, xc]
-    last = h
-    black[0, :] = red[1, :]
-    red[0, :] = black[1, :]
-    black[last + 1, :] = red[last, :]
-    red[last + 1, :] = black[last, :]
-
-
-@numba.njit(cache=True, fastmath=True)
-def compact_gradient_sq(own: np.ndarray, other: np.ndarray, colour: int, out: np.ndarray) -> None:
-    """Add |grad f|^2 at the pixels of one colour to ``out`` (centred differences).
-
-    ``own`` and ``other`` are the compact arrays of f for this colour and the other one,
-    whose halos were filled by :func:`fill_neumann_ghosts`.
-    """
-    h = own.shape[0] - 2
-    n = own.shape[1] - 2
-    e = n + 1
-    for yc in range(1, h + 1):
-        off = (yc - 1 + colour) & 1
-        fl = other[yc, off:off + n]
-        fr = other[yc, off + 1:off + 1 + n]
-        fu = other[yc - 1, 1:e]
-        fd = other[yc + 1, 1:e]
-        o = out[yc, 1:e]
-        for i in range(n):
-            gx = np.float32(0.5) * (fr[i] - fl[i])
-            gy = np.float32(0.5) * (fd[i] - fu[i])
-            o[i] += gx * gx + gy * gy
-
-
-@numba.njit(cache=True, fastmath=True)
-def compact_charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> None:
-    """out = 1 / sqrt(s2 + eps^2) elementwise on compact arrays (lagged psi')."""
-    e2 = np.float32(eps * eps)
-    h, w = s2.shape
-    for y in range(h):
-        a = s2[y]
-        o = out[y]
-        for x in range(w):
-            o[x] = np.float32(1.0) / np.sqrt(a[x] + e2)
-
-
-@numba.njit(cache=True)
-def lagged_psi(
-    fields: tuple[tuple[np.ndarray, np.ndarray], ...],
-    width: int,
-    eps: float,
-    s2: np.ndarray,
-    psi: tuple[np.ndarray, np.ndarray],
-) -> None:
-    """Lagged weight psi'(sum |grad f|^2) of one Charbonnier smoothness term, per colour.
-
-    Parameters
-    ----------
-    fields : tuple of (red, black) pairs of compact arrays (H+2, W2+2), float32
-        The fields one penaliser acts on jointly: (u, v) for the flow (Eq. 5 penalises
-        |grad u|^2 + |grad v|^2 together), a single field for each of d and d' (Eq. 6 has
-        one penaliser per field). Their halos are overwritten with Neumann ghost values.
-    width : int
-        Image width W (locates the right-border ghosts).
-    eps : float
-        Charbonnier epsilon.
-    s2 : ndarray (H+2, W2+2), float32
-        Scratch space.
-    psi : (red, black) compact arrays
-        Output: 1 / sqrt(sum |grad f|^2 + eps^2) at the pixels of each colour.
-    """
-    for f in fields:
-        fill_neumann_ghosts(f[0], f[1], width)
-    for c in range(2):
-        s2[:] = 0.0
-        for f in fields:
-            compact_gradient_sq(f[c], f[1 - c], c, s2)
-        compact_charbonnier_prime(s2, eps, psi[c])
-
-
-@numba.njit(cache=True, fastmath=True)
-def compact_edge_weights(
-    psi_own: np.ndarray,
-    psi_other: np.ndarray,
-    mask: np.ndarray,
-    scale: float,
-    colour: int,
-    coef: np.ndarray,
-    plane: int,
-) -> None:
-    """Write the four edge weights of one colour into ``coef[plane:plane + 4]``.
-
-    Weight = ``scale`` * mean of the two pixels' psi' * edge mask (Neumann borders).
-    ``plane`` is :data:`W1` or :data:`W2`.
-    """
-    h = psi_own.shape[0] - 2
-    n = psi_own.shape[1] - 2
-    e = n + 1
-    half = np.float32(0.5 * scale)
-    for yc in range(1, h + 1):
-        off = (yc - 1 + colour) & 1
-        p = psi_own[yc, 1:e]
-        pl = psi_other[yc, off:off + n]
-        pr = psi_other[yc, off + 1:off + 1 + n]
-        pu = psi_other[yc - 1, 1:e]
-        pd = psi_other[yc + 1, 1:e]
-        ml, mr, mu, md = mask[0, yc, 1:e], mask[1, yc, 1:e], mask[2, yc, 1:e], mask[3, yc, 1:e]
-        wl = coef[plane, yc, 1:e]
-        wr = coef[plane + 1, yc, 1:e]
-        wu = coef[plane + 2, yc, 1:e]
-        wd = coef[plane + 3, yc, 1:e]
-        for i in range(n):
-            wl[i] = half * (p[i] + pl[i]) * ml[i]
-            wr[i] = half * (p[i] + pr[i]) * mr[i]
-            wu[i] = half * (p[i] + pu[i]) * mu[i]
-            wd[i] = half * (p[i] + pd[i]) * md[i]
-
-
-@numba.njit(cache=True, fastmath=True)
-def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None:
-    """Store 1 / (A11 + sum w1) and 1 / (A22 + sum w2) in the INV_D planes of ``coef``.
-
-    ``a11``, ``a22`` are compact (H+2, W2+2). A zero diagonal (padding entries, or a
-    pixel with neither data nor neighbours) gets 0, which freezes that unknown instead of
-    producing inf.
-    """
-    h = coef.shape[1]
-    w = coef.shape[2]
-    for y in range(h):
-        i1 = coef[0, y]
-        i2 = coef[2, y]
-        b11 = a11[y]
-        b22 = a22[y]
-        wl1, wr1, wu1, wd1 = coef[5, y], coef[6, y], coef[7, y], coef[8, y]
-        wl2, wr2, wu2, wd2 = coef[9, y], coef[10, y], coef[11, y], coef[12, y]
-        for x in range(w):
-            d1 = b11[x] + wl1[x] + wr1[x] + wu1[x] + wd1[x]
-            d2 = b22[x] + wl2[x] + wr2[x] + wu2[x] + wd2[x]
-            i1[x] = np.float32(1.0) / d1 if d1 > 0 else np.float32(0.0)
-            i2[x] = np.float32(1.0) / d2 if d2 > 0 else np.float32(0.0)

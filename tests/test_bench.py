@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from appliance import cli
+from appliance.evaluation import bench_input
 from appliance.evaluation import benchmark as bm
 
 
@@ -33,8 +34,16 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert all(_positive_finite(v) for v in res["pairs_per_s"].values())
     assert _positive_finite(res["farneback_ms"]) and _positive_finite(res["chain_cpu_ms"])
     assert set(res["ratio_to_farneback"]) == {*bm.STAGES, "chain"}
+    assert set(res["cold"]["stages_ms"]) == set(bm.STAGES)
+    assert res["cold"]["chain_ms"] >= 0.99 * sum(res["cold"]["stages_ms"].values())
+    floor = res["floor"]
+    assert all(_positive_finite(floor[k]) for k in
+               ("bytes_per_triple", "cache_bandwidth_gb_s", "dram_bandwidth_gb_s"))
+    # a floor is a floor: below the measured chain
+    assert floor["cache_floor_ms"] < res["chain_ms"]
     text = capsys.readouterr().out
     assert "disparity" in text and "pairs/s" in text and "load average" in text
+    assert "roofline floor" in text and "cold" in text
     # the generated input was cached under --cache-dir
     assert len(list((tmp_path / "cache").glob("blob-*.npz"))) == 1
 
@@ -71,7 +80,7 @@ def test_bad_options_exit_2(change: list[str], tmp_path: Path) -> None:
 
 
 def test_field_preset_matches_bench_geometry() -> None:
-    cfg = bm._field_config(n_frames=4, seed=7)
+    cfg = bench_input._field_config(n_frames=4, seed=7)
     cam = cfg.effective_camera()
     geo = bm.geometry()
     assert (cam.width, cam.height) == geo.image_size

@@ -141,3 +141,16 @@ def test_catmull_rom_warp_is_exact_for_quadratics_and_integer_shifts() -> None:
     out, out_dx = derivatives.warp_dx_catmull_rom(img, np.full_like(xx, -5.0), yy)
     np.testing.assert_allclose(out, np.repeat(img[:, :1], 40, axis=1), atol=1e-6)
     assert np.all(out_dx == 0.0)
+
+
+def test_row_warp_equals_the_general_warp_on_pixel_rows() -> None:
+    from processing import derivatives
+
+    rng = np.random.default_rng(3)
+    img = rng.random((20, 30)).astype(np.float32)
+    yy, xx = np.mgrid[0:20, 0:30].astype(np.float32)
+    mx = xx + rng.normal(0.0, 6.0, xx.shape).astype(np.float32)  # some outside the image
+    general = derivatives.warp_dx_catmull_rom(img, mx, yy)
+    rows = derivatives.warp_dx_catmull_rom_rows(img, mx)
+    np.testing.assert_array_equal(rows[0], general[0])
+    np.testing.assert_array_equal(rows[1], general[1])

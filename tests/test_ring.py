@@ -132,3 +132,61 @@ def test_writer_never_waits_for_readers() -> None:
             t.join(30)
             assert not t.is_alive()
         assert ring.stats().written == 100
+
+
+def test_strided_takes_split_the_triples_between_two_readers() -> None:
+    """Stride 2: phase 0 gets windows ending at even pairs, phase 1 at odd ones."""
+    img = np.zeros((4, 5), np.uint16)
+    with PairRing.create(16, (4, 5)) as ring:
+        for i in range(4):
+            ring.write(img, img, pair_index=i)
+        a = ring.take_newest(3, stride=2, phase=1)  # newest end 3
+        assert a is not None and a.seqs == [1, 2, 3] and a.skipped == 0
+        a.release()
+        b = ring.take_newest(3, stride=2, phase=0)  # newest even end 2
+        assert b is not None and b.seqs == [0, 1, 2] and b.skipped == 0
+        b.release()
+        assert ring.take_newest(3, stride=2, phase=0) is None
+        ring.write(img, img, pair_index=4)
+        c = ring.take_newest(3, stride=2, phase=0)
+        assert c is not None and c.seqs == [2, 3, 4] and c.skipped == 0
+        c.release()
+        for i in range(5, 10):
+            ring.write(img, img, pair_index=i)
+        # phase 1 last took end 3; ends 5 and 7 were never taken, 9 is the newest
+        d = ring.take_newest(3, stride=2, phase=1)
+        assert d is not None and d.seqs == [7, 8, 9] and d.skipped == 2
+        d.release()
+        with pytest.raises(ValueError, match="stride"):
+            ring.take_newest(3, stride=2, phase=2)
+
+
+def test_in_order_takes_stay_consecutive_while_the_lag_is_small() -> None:
+    img = np.zeros((4, 5), np.uint16)
+    with PairRing.create(16, (4, 5)) as ring:
+        for i in range(3):
+            ring.write(img, img, pair_index=i)
+        a = ring.take_newest(3, max_lag=4)
+        assert a is not None and a.seqs == [0, 1, 2]
+        a.release()
+        for i in range(3, 7):
+            ring.write(img, img, pair_index=i)  # newest is 6, the next window ends at 3
+        b = ring.take_newest(3, max_lag=4)
+        assert b is not None and b.seqs == [1, 2, 3] and b.skipped == 0
+        b.release()
+        for i in range(7, 12):
+            ring.write(img, img, pair_index=i)  # the next window (end 4) lags 7 > 4
+        c = ring.take_newest(3, max_lag=4)
+        assert c is not None and c.seqs == [9, 10, 11] and c.skipped == 7
+        c.release()
+        # with two phases each reader's windows follow each other in order
+        d = ring.take_newest(3, stride=2, phase=1, max_lag=4)
+        assert d is not None and d.seqs == [9, 10, 11]
+        d.release()
+        for i in range(12, 16):
+            ring.write(img, img, pair_index=i)
+        e = ring.take_newest(3, stride=2, phase=1, max_lag=4)
+        assert e is not None and e.seqs == [11, 12, 13] and e.skipped == 0
+        e.release()
+        with pytest.raises(ValueError, match="max_lag"):
+            ring.take_newest(3, max_lag=16)

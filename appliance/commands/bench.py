@@ -22,11 +22,14 @@ def register(root: argparse._SubParsersAction) -> None:
         description=(
             "Runs the scene-flow chain (compute_scene_flow, the daemon's code) at 320x240 on "
             "raw 16-bit stereo frames of a moving gas plume and reports: the median wall time "
-            "of each stage and of the whole chain over consecutive triples after a warm-up "
-            "(one OpenCV and one numba thread), the median CPU time of a call, OpenCV "
+            "of each stage and of the whole chain, warm (consecutive triples, started from "
+            "the previous one as in the daemon) and cold (each triple on its own), after a "
+            "warm-up (one OpenCV and one numba thread), the median CPU time of a call, OpenCV "
             "Farneback on the same differential images with each stage's ratio to it (the "
-            "ratio stays comparable on a loaded machine), and stereo pairs per second with "
-            "1..N spawned worker processes each running triples back to back for --seconds. "
+            "ratio stays comparable on a loaded machine), a roofline floor (bytes streamed "
+            "per triple over the copy bandwidth measured in the same run), and stereo pairs "
+            "per second with 1..N spawned worker processes taking every N-th triple as the "
+            "daemon's workers do, back to back for --seconds. "
             "The machine load is printed with the numbers: on a shared machine wall times "
             "grow with the load, CPU times and ratios much less."
         ),
@@ -82,18 +85,32 @@ def run(args: argparse.Namespace) -> int:
         raise cli.CommandError(str(exc)) from exc
     load_end = bm.load_average()
 
-    ratios = st.ratios()
+    warm, cold, fl = st.warm, st.cold, st.floor
+    ratios, cold_ratios = st.ratios("warm"), st.ratios("cold")
     print(f"input: {args.source}, {len(frames.times_s)} frames 320x240 uint16 cycled; "
-          f"{st.runs} timed chain calls after {args.warmup} warm-up; 1 thread per process")
-    print(f"{'stage':<16}{'median ms':>10}{'x Farneback':>13}{'CPU ms (est.)':>15}")
-    for name, ms in st.stages_ms.items():
-        print(f"{name:<16}{ms:>10.2f}{ratios[name]:>13.2f}{st.stages_cpu_est_ms[name]:>15.2f}")
-    print(f"{'chain (total)':<16}{st.chain_ms:>10.2f}{ratios['chain']:>13.2f}"
-          f"{st.chain_cpu_ms:>15.2f}")
+          f"{warm.runs} timed chain calls each warm and cold after {args.warmup} warm-up; "
+          f"1 thread per process")
+    print("warm = consecutive triple started from the previous one (as in the daemon); "
+          "cold = a triple on its own (full pyramid, SGM start)")
+    print(f"{'stage':<18}{'warm ms':>9}{'x Fbck':>8}{'CPU ms':>8}{'cold ms':>10}{'x Fbck':>8}")
+    for name in bm.STAGES:
+        print(f"{name:<18}{warm.stages_ms[name]:>9.2f}{ratios[name]:>8.2f}"
+              f"{warm.stages_cpu_est_ms[name]:>8.2f}{cold.stages_ms[name]:>10.2f}"
+              f"{cold_ratios[name]:>8.2f}")
+    print(f"{'chain (total)':<18}{warm.chain_ms:>9.2f}{ratios['chain']:>8.2f}{warm.cpu_ms:>8.2f}"
+          f"{cold.chain_ms:>10.2f}{cold_ratios['chain']:>8.2f}")
     print("CPU ms: process CPU time of a call (measured; per stage estimated from the "
           "call's CPU/wall ratio)")
+    fb_cpu = st.farneback_cpu_ms
+    print(f"by CPU time (steadier under load): warm chain {warm.cpu_ms / fb_cpu:.2f}x, "
+          f"cold chain {cold.cpu_ms / fb_cpu:.2f}x Farneback")
     print(f"Farneback reference (OpenCV, same differential images): {st.farneback_ms:.2f} ms "
           f"wall, {st.farneback_cpu_ms:.2f} ms CPU")
+    print(f"roofline floor of a warm triple: {fl.bytes_per_triple / 1e6:.0f} MB streamed; at "
+          f"{fl.cache_bandwidth_gb_s:.1f} GB/s (cache-resident copy) {fl.cache_floor_ms:.2f} ms, "
+          f"at {fl.dram_bandwidth_gb_s:.1f} GB/s (main memory) {fl.dram_floor_ms:.2f} ms; the "
+          f"warm chain's CPU time is {warm.cpu_ms / fl.cache_floor_ms:.1f}x / "
+          f"{warm.cpu_ms / fl.dram_floor_ms:.1f}x these floors")
     for t in through:
         print(f"{t.workers} worker(s): {t.pairs_per_s:.2f} pairs/s "
               f"({t.triples} triples in {t.wall_s:.1f} s; {t.cpu_ms_per_pair:.1f} ms CPU each, "
@@ -104,18 +121,25 @@ def run(args: argparse.Namespace) -> int:
 
     if args.json is not None:
         out: dict[str, Any] = {
-            "stages_ms": st.stages_ms,
-            "chain_ms": st.chain_ms,
+            "stages_ms": warm.stages_ms,
+            "chain_ms": warm.chain_ms,
             "pairs_per_s": {str(t.workers): t.pairs_per_s for t in through},
-            "chain_cpu_ms": st.chain_cpu_ms,
-            "stages_cpu_est_ms": st.stages_cpu_est_ms,
+            "chain_cpu_ms": warm.cpu_ms,
+            "stages_cpu_est_ms": warm.stages_cpu_est_ms,
+            "cold": {"stages_ms": cold.stages_ms, "chain_ms": cold.chain_ms,
+                     "chain_cpu_ms": cold.cpu_ms,
+                     "ratio_to_farneback": cold_ratios},
             "cpu_ms_per_pair": {str(t.workers): t.cpu_ms_per_pair for t in through},
             "pairs_per_cpu_s": {str(t.workers): t.pairs_per_cpu_s for t in through},
             "farneback_ms": st.farneback_ms,
             "farneback_cpu_ms": st.farneback_cpu_ms,
             "ratio_to_farneback": ratios,
+            "floor": {"bytes_per_triple": fl.bytes_per_triple,
+                      "cache_bandwidth_gb_s": fl.cache_bandwidth_gb_s,
+                      "dram_bandwidth_gb_s": fl.dram_bandwidth_gb_s,
+                      "cache_floor_ms": fl.cache_floor_ms, "dram_floor_ms": fl.dram_floor_ms},
             "source": args.source,
-            "runs": st.runs,
+            "runs": warm.runs,
             "seconds": args.seconds,
             "load_average": {"start": load_start, "end": load_end, "cpus": _cpu_count()},
         }

@@ -39,6 +39,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.exitcodes import EXIT_OK
+from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, worker_main
@@ -95,6 +96,9 @@ class Appliance:
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         self.live_url: str | None = None
+        self._keep_up = KeepUpCheck()
+        self._peak_rss_mb: list[float | None] = []
+        self._t_start = time.monotonic()
 
     # ------------------------------------------------------------------ helpers
 
@@ -133,6 +137,12 @@ class Appliance:
         self.counters.skipped_pairs += res.skipped
         self.health.latency("processing").add((res.done_mono_ns - res.t_mono_ns[2]) / 1e6)
         self.health.stream("results").tick()
+        if res.skipped:
+            self.health.stream("skipped").tick(res.skipped)  # skipped triples per second
+        verdict = self._keep_up.observe(time.monotonic(), self.counters.results + 1,
+                                        self.counters.skipped_pairs)
+        if verdict is not None:
+            (log.info if verdict[0] else log.warning)("%s", verdict[1])
         if res.error is not None:
             self.counters.result_errors += 1
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
@@ -244,7 +254,8 @@ class Appliance:
             for i in range(cfg.processing.workers):
                 p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                                 args=(i, self.ring.handle(), results, stop_workers,
-                                      self.geometry, self.params), daemon=True)
+                                      self.geometry, self.params, cfg.processing.workers),
+                                daemon=True)
                 p.start()
                 workers.append(p)
         else:
@@ -301,6 +312,7 @@ class Appliance:
                 t.join(timeout=2.0)
 
     def _stop_processing(self, stop_workers: Any, workers: list[Any]) -> None:
+        self._peak_rss_mb = [peak_rss_mb(None), *(peak_rss_mb(p.pid) for p in workers)]
         stop_workers.set()
         for p in workers:
             p.join(timeout=2.0)
@@ -343,10 +355,19 @@ class Appliance:
 
     def _announce_end(self) -> None:
         c = self.counters
+        elapsed = max(time.monotonic() - self._t_start, 1e-9)
+        share = c.results / max(c.results + c.skipped_pairs, 1)
         sys.stderr.write(
             f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
-            f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
-            f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+            f"pairs {c.pairs}, processed {c.results} ({c.results / elapsed:.1f}/s, "
+            f"{100 * share:.0f} %), skipped {c.skipped_pairs} "
+            f"({c.skipped_pairs / elapsed:.1f}/s), failed {c.result_errors}, "
+            f"wind samples {c.wind_samples}\n")
+        if self._peak_rss_mb:
+            names = ["daemon", *(f"worker {i}" for i in range(len(self._peak_rss_mb) - 1))]
+            sys.stderr.write("ogiflow: peak RSS (MB): " + ", ".join(
+                f"{n} {'n/a' if mb is None else f'{mb:.0f}'}"
+                for n, mb in zip(names, self._peak_rss_mb, strict=True)) + "\n")
         comparison = self.publisher.truth_comparison()
         if comparison is not None:
             sys.stderr.write(

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["META_DTYPE", "PairLease", "PairRing", "RingHandle", "RingStats"]
+__all__ = ["MAX_STRIDE", "META_DTYPE", "PairLease", "PairRing", "RingHandle", "RingStats"]
 
 #: Per-slot metadata (all int64; ns times are ``time.monotonic_ns()`` / UNIX ns).
 META_DTYPE = np.dtype([
@@ -45,6 +45,9 @@ META_DTYPE = np.dtype([
 ])
 _META_FIELDS = tuple(n for n in META_DTYPE.names if n not in ("gen", "seq"))  # type: ignore[union-attr]
 _HEAD, _CLAIMED, _OVERWRITES = 0, 1, 2
+_PHASE_CLAIMED = 3  # words 3 .. 3 + MAX_STRIDE - 1: last window end taken per phase
+#: Largest stride of :meth:`PairRing.take_newest`.
+MAX_STRIDE = 4
 _HEADER_WORDS = 8
 
 
@@ -170,6 +173,7 @@ class PairRing:
         ring = cls(shm, capacity, shape, np.dtype(dtype), lock, owner=True)
         ring._header[:] = 0
         ring._header[_CLAIMED] = -1
+        ring._header[_PHASE_CLAIMED:_PHASE_CLAIMED + MAX_STRIDE] = -1
         ring._meta["gen"] = 0
         return ring
 
@@ -240,25 +244,56 @@ class PairRing:
 
     # ------------------------------------------------------------------ readers
 
-    def take_newest(self, k: int = 3) -> PairLease | None:
+    def take_newest(self, k: int = 3, *, stride: int = 1, phase: int = 0,
+                    max_lag: int | None = None) -> PairLease | None:
         """Lend the newest ``k`` consecutive pairs if their window was not taken yet.
+
+        Parameters
+        ----------
+        k : int
+            Window length (3 for a triple).
+        stride, phase : int
+            Take only windows whose last pair's sequence number is ``phase`` modulo
+            ``stride`` (1 <= stride <= MAX_STRIDE, 0 <= phase < stride). Two workers with
+            stride 2 and phases 0 and 1 then see every other triple each, so that each can
+            start from its own previous triple (:mod:`processing.temporal`); ``skipped``
+            counts the windows of this phase that were never taken.
+        max_lag : int, optional
+            Hand windows out in order instead: the one right after this phase's last
+            window, as long as it ends at most ``max_lag`` pairs behind the newest pair;
+            beyond that, the newest (the windows in between are skipped). A reader that
+            starts each triple from its previous one stays warm this way while it lags a
+            little, instead of jumping to the newest window and starting cold.
 
         Returns
         -------
         PairLease or None
-            None when fewer than ``k`` pairs exist or no new pair arrived since the last take.
+            None when fewer than ``k`` pairs exist or no new window of this phase arrived
+            since the last take.
         """
         if not 1 <= k <= self.capacity - 1:
             raise ValueError(f"k must be in 1..capacity-1 = {self.capacity - 1}, got {k}")
+        if max_lag is not None and not 0 <= max_lag <= self.capacity - k - 1:
+            raise ValueError(f"max_lag must be in 0..capacity-k-1 = {self.capacity - k - 1}, "
+                             f"got {max_lag}")
+        if not (1 <= stride <= MAX_STRIDE and 0 <= phase < stride):
+            raise ValueError(f"need 1 <= stride <= {MAX_STRIDE} and 0 <= phase < stride, "
+                             f"got stride {stride}, phase {phase}")
+        word = _CLAIMED if stride == 1 else _PHASE_CLAIMED + phase
         with self._lock:
             head = int(self._header[_HEAD])
             newest = head - 1
-            claimed = int(self._header[_CLAIMED])
-            if newest < k - 1 or newest <= claimed:
+            end = newest - (newest - phase) % stride  # newest window end of this phase
+            claimed = int(self._header[word])
+            first = k - 1 + (phase - (k - 1)) % stride  # first window end of this phase
+            if end < first or end <= claimed:
                 return None
-            skipped = newest - max(claimed, k - 2) - 1
-            self._header[_CLAIMED] = newest
-        seqs = list(range(newest - k + 1, newest + 1))
+            if max_lag is not None and claimed >= first and newest - (claimed + stride) <= max_lag:
+                end = claimed + stride  # the next window of this phase, in order
+            skipped = (end - max(claimed, first - stride)) // stride - 1
+            self._header[word] = end
+            self._header[_CLAIMED] = max(int(self._header[_CLAIMED]), end)
+        seqs = list(range(end - k + 1, end + 1))
         slots = [s % self.capacity for s in seqs]
         gens = [2 * s + 2 for s in seqs]
         self._leases += 1

@@ -1,0 +1,87 @@
+"""Does processing keep up with the cameras? Measured once at start, said once.
+
+Processing skips windows when it falls behind (acquisition and recording never wait), so a
+configuration that is too slow for its frame rate still runs - and silently sees only part
+of what the cameras deliver. :class:`KeepUpCheck` watches the processed and skipped triples
+over a measuring window that opens with the first result (so the workers' warm-up, numba
+loading its kernels, is not counted) and, at its end, returns one message: either the share
+processed is at least ``threshold``, or it is not and by how much.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass
+class KeepUpCheck:
+    """One measurement of the processed share over ``window_s`` after the first result.
+
+    Parameters
+    ----------
+    window_s : float
+        Length of the measuring window in s.
+    threshold : float
+        Smallest processed share (processed / (processed + skipped)) that counts as
+        keeping up.
+    """
+
+    window_s: float = 20.0
+    threshold: float = 0.9
+    _start: tuple[float, int, int] | None = None
+    _done: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.window_s > 0:
+            raise ValueError(f"window_s must be positive, got {self.window_s!r}")
+        if not 0 < self.threshold <= 1:
+            raise ValueError(f"threshold must be in (0, 1], got {self.threshold!r}")
+
+    def observe(self, now_s: float, processed: int, skipped: int) -> tuple[bool, str] | None:
+        """Feed the running totals at a result; returns (keeps_up, message) exactly once.
+
+        Parameters
+        ----------
+        now_s : float
+            Monotonic time in s.
+        processed, skipped : int
+            Triples processed and skipped so far (totals over all workers).
+        """
+        if self._done:
+            return None
+        if self._start is None:
+            self._start = (now_s, processed, skipped)
+            return None
+        t0, p0, s0 = self._start
+        elapsed = now_s - t0
+        if elapsed < self.window_s:
+            return None
+        self._done = True
+        p, s = processed - p0, skipped - s0
+        total = p + s
+        share = p / total if total else 1.0
+        rate = p / elapsed
+        if share >= self.threshold:
+            return True, (f"processing keeps up: {100 * share:.0f} % of triples processed "
+                          f"({rate:.1f}/s) over the first {elapsed:.0f} s")
+        return False, (f"processing cannot keep up: only {100 * share:.0f} % of triples "
+                       f"processed ({rate:.1f}/s, {s / elapsed:.1f}/s skipped) over the first "
+                       f"{elapsed:.0f} s; lower the frame rate, add workers/cores, or reduce "
+                       "the solvers' iterations (processing.parameters)")
+
+
+def peak_rss_mb(pid: int | None) -> float | None:
+    """Peak resident memory (VmHWM) of a process in MB (None: this one); None if unknown.
+
+    Read from /proc, not getrusage: a spawned child inherits its parent's ru_maxrss across
+    fork and exec, which would report the daemon's peak for every worker.
+    """
+    try:
+        text = Path(f"/proc/{pid or 'self'}/status").read_text()
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024  # kB
+    return None

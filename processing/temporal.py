@@ -1,0 +1,183 @@
+"""Temporal reuse between triples of one stream: what a chain call leaves for the next.
+
+Consecutive triples (t0, t1, t2), (t1, t2, t3) share two frames and one differential image,
+and the gas moves little from one triple to the next. The live chain exploits both:
+
+- the previous triple's flow w_L and disparities d_L, d'_L start the solvers (a *warm
+  start*) on fewer pyramid levels and iterations (``ChainParameters.warm_flow_options``,
+  ``warm_disparity_options``) instead of SGM and a full pyramid;
+- each raw frame is radiometrically corrected and rectified once, not once per triple it
+  belongs to (:attr:`ChainState.frames`, keyed by camera and capture time);
+- the registration shift t1 -> t2 of one triple is the t0 -> t1 shift of the next;
+- the normalisation scale is tracked across triples.
+
+The differential image D(t1, t2) of one triple is D(t0, t1) of the next only on the same
+pixel grid: :mod:`processing.preprocess` registers t1 and t2 onto t0, so the next triple
+needs it on the t1 grid. Re-using it would save one subtraction, one warp and one
+denoising per camera (about 2 % of a warm triple, measured) at the price of an
+interpolation; it is not done.
+
+A warm start is taken only when this triple follows the previous one of the same
+:class:`ChainState` exactly ``stride`` frames later, as proved by the shared capture times
+(stride 1: (t1, t2) of the previous are (t0, t1) of this one; stride 2: t2 of the previous
+is t0 of this one). Anything else - a dropped frame, a restart, a reordered or repeated
+triple - is a cold start: full pyramid and the configured initial disparity. With two
+workers taking every other triple (the daemon), each worker's state has stride 2.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from processing.preprocess import DiffScaleTracker
+
+#: Strides whose succession the shared capture times can prove (see the module docstring).
+STRIDES = (1, 2)
+
+
+@dataclass
+class ChainState:
+    """What one call leaves for the next call on the following triple of the same stream.
+
+    The daemon keeps one per worker; offline evaluation may pass None (every triple cold).
+
+    Attributes
+    ----------
+    stride : int
+        Frames between the first frames of two triples this state sees in succession: 1
+        when one process handles every triple, 2 when two workers alternate.
+    scale : DiffScaleTracker or None
+        Tracked normalisation scale of the differential images.
+    previous_flow, previous_disparity, previous_change : ndarray or None
+        w_L (H, W, 2), d_L and d'_L (H, W) of the previous triple, px.
+    previous_times : (float, float, float) or None
+        Capture times of the previous triple, s.
+    shift01 : pair of (dx, dy) or None
+        Registration shift t1 -> t2 of the previous triple per camera (left, right).
+    warm_starts, cold_starts : int
+        How many calls started warm and cold (for the benchmark and the tests).
+    frames : dict
+        Corrected and rectified frames of the last triple by (camera, capture time), camera
+        0 = left, 1 = right (:func:`corrected_frame`).
+    frames_reused : int
+        How many frames came from ``frames`` instead of being corrected again.
+    """
+
+    stride: int = 1
+    scale: DiffScaleTracker | None = None
+    previous_flow: np.ndarray | None = None
+    previous_disparity: np.ndarray | None = None
+    previous_change: np.ndarray | None = None
+    previous_times: tuple[float, float, float] | None = None
+    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
+    warm_starts: int = 0
+    cold_starts: int = 0
+    frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
+    frames_reused: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stride not in STRIDES:
+            raise ValueError(f"stride must be one of {STRIDES}, got {self.stride!r}")
+
+    def follows(self, times: tuple[float, float, float]) -> bool:
+        """True when ``times`` is the triple ``stride`` frames after the previous one."""
+        prev = self.previous_times
+        if prev is None:
+            return False
+        if self.stride == 1:
+            return prev[1:] == times[:2]
+        return prev[2] == times[0]
+
+    def reset(self) -> None:
+        """Forget the previous triple (the next call starts cold); keeps the scale."""
+        self.previous_flow = self.previous_disparity = self.previous_change = None
+        self.previous_times = None
+        self.shift01 = (None, None)
+        self.frames.clear()
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px."""
+
+    flow: np.ndarray
+    disparity: np.ndarray
+    change: np.ndarray
+
+
+def warm_start(state: ChainState | None, times: tuple[float, float, float],
+               enabled: bool) -> WarmStart | None:
+    """The warm start for a triple at ``times``, or None when it must start cold.
+
+    Counts the decision in the state's ``warm_starts`` / ``cold_starts``.
+    """
+    if state is None:
+        return None
+    ok = (enabled and state.follows(times) and state.previous_flow is not None
+          and state.previous_disparity is not None and state.previous_change is not None)
+    if not ok:
+        state.cold_starts += 1
+        return None
+    state.warm_starts += 1
+    assert state.previous_flow is not None and state.previous_disparity is not None
+    assert state.previous_change is not None
+    return WarmStart(state.previous_flow, state.previous_disparity, state.previous_change)
+
+
+def known_shift01(state: ChainState | None, times: tuple[float, float, float]
+                  ) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
+    """The t0 -> t1 registration shift per camera if the previous triple measured it.
+
+    Only at stride 1, where the previous triple's t1 -> t2 is this one's t0 -> t1;
+    (None, None) otherwise (pre-processing then estimates it).
+    """
+    if state is None or state.stride != 1 or not state.follows(times):
+        return (None, None)
+    return state.shift01
+
+
+def solver_options(base: Mapping[str, Any], warm: Mapping[str, Any],
+                   is_warm: bool) -> dict[str, Any]:
+    """Keyword arguments of one solver: ``base``, overridden by ``warm`` on a warm start."""
+    return {**base, **warm} if is_warm else dict(base)
+
+
+def remember(state: ChainState, *, times: tuple[float, float, float], flow: np.ndarray,
+             disparity: np.ndarray, change: np.ndarray,
+             shifts12: tuple[tuple[float, float], tuple[float, float]]) -> None:
+    """Store this triple's results in ``state`` for the next call."""
+    state.previous_flow = flow
+    state.previous_disparity = disparity
+    state.previous_change = change
+    state.previous_times = times
+    # The t1 -> t2 shift of this triple is the t0 -> t1 shift of the next one (stride 1).
+    state.shift01 = shifts12
+
+
+def corrected_frames(state: ChainState | None, camera: int, raw: Sequence[np.ndarray],
+                     times: tuple[float, float, float],
+                     correct: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:
+    """``correct`` applied to the three raw frames of one camera, each frame only once.
+
+    Frames of this camera seen in the previous call (same capture time) come from
+    ``state.frames``; afterwards the cache holds exactly this triple's frames. Without a
+    state every frame is corrected.
+    """
+    if state is None:
+        return [correct(f) for f in raw]
+    out = []
+    for f, t in zip(raw, times, strict=True):
+        img = state.frames.get((camera, t))
+        if img is None:
+            img = correct(f)
+        else:
+            state.frames_reused += 1
+        out.append(img)
+    for key in [k for k in state.frames if k[0] == camera]:
+        del state.frames[key]
+    state.frames.update({(camera, t): img for t, img in zip(times, out, strict=True)})
+    return out

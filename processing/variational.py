@@ -1,0 +1,215 @@
+"""The solver core shared by the flow (paper Eq. 5) and the joint disparity (Eq. 6) solvers.
+
+Both minimise a Charbonnier energy with the numerics of Brox et al. (2004): a pyramid of
+the input images, coarse-to-fine refinement of the unknown fields, and at every level outer
+warps, lagged fixed-point iterations and red-black SOR (:mod:`processing.redblack`,
+:mod:`processing.lagged`). This module holds what the two have in common:
+
+- :func:`check_options`: one validation of the numerical options;
+- :func:`build_pyramids`: pre-smoothing and the level shapes, optionally only the finest
+  ``n_levels`` (a warm start from the previous frame needs no coarse levels);
+- :func:`coarse_to_fine`: the generic driver that resamples the fields from level to level
+  and calls a level solver (scikit-image's ``_optical_flow_utils.coarse_to_fine`` is the
+  model);
+- :class:`Workspace` / :func:`workspace`: the compact red-black arrays of one level size,
+  allocated once per thread and reused by every call, so that a solver call allocates no
+  per-iteration memory (fresh pages were a third of the solver time before).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from processing import lagged, pyramid, redblack
+
+Fields = tuple[np.ndarray, ...]
+LevelSolver = Callable[[int, Fields], Fields]
+
+#: Workspaces kept per thread (a pyramid of one image size has about 11 levels).
+MAX_WORKSPACES = 48
+
+
+@dataclass(frozen=True)
+class Workspace:
+    """Preallocated compact red-black arrays for one level size (H, W).
+
+    Every compact array has shape (H+2, W2+2), W2 = ceil(W/2) (one-pixel halo); pairs are
+    (red, black). Contents are scratch: each solver call overwrites what it reads.
+
+    Attributes
+    ----------
+    inputs : ndarray, shape (N_INPUTS, 2, H+2, W2+2), float32
+        The per-pixel data-term inputs of one warp, split by colour.
+    x1, x2, x1_0, x2_0 : (ndarray, ndarray)
+        The two unknowns and their values at the warp (for the increments).
+    coefs : (ndarray, ndarray), shape (13, H+2, W2+2) each
+        The linear system (planes of :mod:`processing.redblack`).
+    masks : (ndarray, ndarray), shape (4, H+2, W2+2) each
+        Edge-existence masks (:func:`processing.lagged.border_masks`); constant.
+    a11, a22, psi1, psi2 : (ndarray, ndarray)
+        Data diagonals and the lagged smoothness weights of the two penalisers.
+    s2 : ndarray
+        Scratch for |grad f|^2.
+    """
+
+    shape: tuple[int, int]
+    inputs: np.ndarray
+    x1: tuple[np.ndarray, np.ndarray]
+    x2: tuple[np.ndarray, np.ndarray]
+    x1_0: tuple[np.ndarray, np.ndarray]
+    x2_0: tuple[np.ndarray, np.ndarray]
+    coefs: tuple[np.ndarray, np.ndarray]
+    masks: tuple[np.ndarray, np.ndarray]
+    a11: tuple[np.ndarray, np.ndarray]
+    a22: tuple[np.ndarray, np.ndarray]
+    psi1: tuple[np.ndarray, np.ndarray]
+    psi2: tuple[np.ndarray, np.ndarray]
+    s2: np.ndarray
+
+    #: Per-pixel inputs of the larger of the two solvers (the flow: 9).
+    N_INPUTS = 9
+
+    @classmethod
+    def allocate(cls, height: int, width: int) -> Workspace:
+        """Allocate (zeroed) the arrays for an (H, W) level."""
+        cshape = redblack.compact_shape(height, width)
+
+        def pair() -> tuple[np.ndarray, np.ndarray]:
+            return np.zeros(cshape, np.float32), np.zeros(cshape, np.float32)
+
+        return cls(
+            shape=(height, width),
+            inputs=np.zeros((cls.N_INPUTS, 2, *cshape), np.float32),
+            x1=pair(), x2=pair(), x1_0=pair(), x2_0=pair(),
+            coefs=redblack.empty_system(height, width),
+            masks=lagged.border_masks(height, width),
+            a11=pair(), a22=pair(), psi1=pair(), psi2=pair(),
+            s2=np.zeros(cshape, np.float32),
+        )
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by this workspace in bytes."""
+        arrays = [self.inputs, self.s2]
+        for p in (self.x1, self.x2, self.x1_0, self.x2_0, self.coefs, self.masks, self.a11,
+                  self.a22, self.psi1, self.psi2):
+            arrays.extend(p)
+        return sum(a.nbytes for a in arrays)
+
+
+_local = threading.local()
+
+
+def workspace(shape: tuple[int, int]) -> Workspace:
+    """The workspace of this thread for level size ``shape`` (H, W), allocated on first use.
+
+    Per thread, so that solvers called from several threads never share scratch memory;
+    the least recently used sizes are dropped beyond :data:`MAX_WORKSPACES`.
+    """
+    cache: OrderedDict[tuple[int, int], Workspace] | None = getattr(_local, "cache", None)
+    if cache is None:
+        cache = _local.cache = OrderedDict()
+    key = (int(shape[0]), int(shape[1]))
+    ws = cache.get(key)
+    if ws is None:
+        ws = cache[key] = Workspace.allocate(*key)
+        while len(cache) > MAX_WORKSPACES:
+            cache.popitem(last=False)
+    else:
+        cache.move_to_end(key)
+    return ws
+
+
+def check_options(*, eps: float, pyramid_factor: float, omega: float, presmooth_sigma: float,
+                  n_levels: int | None, **counts: int) -> None:
+    """Validate the numerical options common to both solvers.
+
+    Raises
+    ------
+    ValueError
+        eps <= 0, pyramid_factor outside (0, 1), omega outside (0, 2), presmooth_sigma < 0,
+        n_levels not None or a positive integer, or any of ``counts`` (iteration counts,
+        min_level_size) not a positive integer; the message names the option.
+    """
+    if not (np.isfinite(eps) and eps > 0):
+        raise ValueError(f"eps must be a finite positive number, got {eps!r}")
+    if not (np.isfinite(presmooth_sigma) and presmooth_sigma >= 0):
+        raise ValueError(f"presmooth_sigma must be a finite non-negative number, "
+                         f"got {presmooth_sigma!r}")
+    if not 0.0 < pyramid_factor < 1.0:
+        raise ValueError(f"pyramid_factor must be in (0, 1), got {pyramid_factor!r}")
+    if not 0.0 < omega < 2.0:
+        raise ValueError(f"omega must be in (0, 2), got {omega!r}")
+    if n_levels is not None:
+        counts = {**counts, "n_levels": n_levels}
+    for name, n in counts.items():
+        if isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"{name} must be a positive integer, got {n!r}")
+
+
+def build_pyramids(images: Sequence[np.ndarray], *, pyramid_factor: float, min_level_size: int,
+                   presmooth_sigma: float, n_levels: int | None
+                   ) -> tuple[list[tuple[int, int]], list[list[np.ndarray]]]:
+    """Pre-smooth the images and build their pyramids, finest level first.
+
+    Parameters
+    ----------
+    images : sequence of ndarray, shape (H, W), float32
+        Same-shaped, validated images.
+    pyramid_factor, min_level_size, presmooth_sigma
+        See the solvers.
+    n_levels : int or None
+        Keep only the finest ``n_levels`` levels (None: down to ``min_level_size``).
+
+    Returns
+    -------
+    shapes : list of (int, int)
+        Level shapes, finest first.
+    pyramids : list of list of ndarray
+        One pyramid per image, levels as in ``shapes``.
+    """
+    shape = images[0].shape
+    if presmooth_sigma > 0:
+        images = [cv2.GaussianBlur(a, (0, 0), presmooth_sigma, borderType=cv2.BORDER_REFLECT)
+                  for a in images]
+    shapes = pyramid.pyramid_shapes(shape, pyramid_factor, min(min_level_size, min(shape)))
+    if n_levels is not None:
+        shapes = shapes[:n_levels]
+    return shapes, [pyramid.image_pyramid(a, shapes) for a in images]
+
+
+def coarse_to_fine(shapes: Sequence[tuple[int, int]], fields: Fields,
+                   solve_level: LevelSolver) -> Fields:
+    """Refine displacement fields from the coarsest level in ``shapes`` to the finest.
+
+    Parameters
+    ----------
+    shapes : sequence of (int, int)
+        Level shapes, finest first (:func:`build_pyramids`).
+    fields : tuple of ndarray, (h, w) or (h, w, 2), float32
+        Initial fields in px, at any size: each is resampled to every level with its
+        values scaled to that level's pixels (a 2-D field is horizontal, e.g. a disparity;
+        :func:`processing.pyramid.resize_field`).
+    solve_level : callable (level, fields) -> fields
+        Refines the fields at pyramid level ``level`` (0 = finest) and returns them at the
+        same shape.
+
+    Returns
+    -------
+    tuple of ndarray, float32
+        The fields at the finest level.
+    """
+    for level in range(len(shapes) - 1, -1, -1):
+        fields = tuple(
+            f if f.shape[:2] == shapes[level]
+            else pyramid.resize_field(f, shapes[level], is_motion=True)
+            for f in fields
+        )
+        fields = solve_level(level, fields)
+    return tuple(f.astype(np.float32, copy=False) for f in fields)

@@ -1,0 +1,31 @@
+"""The start-up 'can processing keep up' measurement."""
+
+from __future__ import annotations
+
+import pytest
+
+from appliance.runtime.keepup import KeepUpCheck
+
+
+def test_says_once_after_the_window_from_the_first_result() -> None:
+    check = KeepUpCheck(window_s=10.0, threshold=0.9)
+    assert check.observe(100.0, 1, 50) is None  # first result opens the window
+    assert check.observe(105.0, 100, 60) is None
+    verdict = check.observe(110.0, 200, 150)  # 199 processed, 100 skipped since the start
+    assert verdict is not None
+    keeps_up, message = verdict
+    assert not keeps_up and "cannot keep up" in message and "67 %" in message
+    assert check.observe(200.0, 300, 150) is None  # said once
+
+
+def test_keeping_up_is_reported_too() -> None:
+    check = KeepUpCheck(window_s=5.0)
+    check.observe(0.0, 1, 0)
+    verdict = check.observe(6.0, 180, 3)
+    assert verdict is not None and verdict[0] and "keeps up" in verdict[1]
+
+
+@pytest.mark.parametrize("kwargs", [{"window_s": 0.0}, {"threshold": 0.0}, {"threshold": 1.5}])
+def test_bad_settings_raise(kwargs: dict) -> None:
+    with pytest.raises(ValueError):
+        KeepUpCheck(**kwargs)

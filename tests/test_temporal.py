@@ -1,0 +1,141 @@
+"""Temporal reuse in the chain: warm starts agree with cold starts, and only follow on."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from processing.chain import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
+from tests.scene_flow_plane import B_M, PP, S_PX, SIZE, render, texture
+
+GEOMETRY = StereoGeometry(
+    camera_constant=S_PX, principal_point=PP, baseline=B_M, image_size=(SIZE[1], SIZE[0])
+)
+PARAMS = ChainParameters(register=False, disparity_init="d0", d0=60.0)
+V_TRUE = np.array([0.3, -0.2, -0.5])
+DT = 1 / 30
+REGION = (slice(20, -20), slice(110, -20))  # seen by both cameras, away from borders
+
+
+def _sequence(n: int) -> tuple[list[np.ndarray], list[np.ndarray], list[float]]:
+    """n stereo frames (16-bit counts) of a textured plane at 2 m moving with V_TRUE."""
+    tex = texture(0)
+    left, right = [], []
+    for k in range(n):
+        z = 2.0 + V_TRUE[2] * DT * k
+        shift = (V_TRUE[0] * DT * k, V_TRUE[1] * DT * k)
+        for frames, cam_x in ((left, 0.0), (right, B_M)):
+            frames.append(np.rint(1000.0 + 20000.0 * render(tex, z, shift, cam_x))
+                          .astype(np.uint16))
+    return left, right, [10.0 + k * DT for k in range(n)]
+
+
+def _triple(seq: tuple, k: int) -> tuple:
+    left, right, times = seq
+    return left[k:k + 3], right[k:k + 3], times[k:k + 3]
+
+
+def _mean_velocity(result) -> np.ndarray:
+    valid = result.valid[REGION]
+    return result.velocity[REGION][valid].astype(np.float64).mean(axis=0)
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_warm_started_results_agree_with_cold_ones(stride: int) -> None:
+    """Bounds: flow within 0.05 px, d within 0.05 px, d' within 0.02 px (median over the
+    region), mean velocity within 2 % and 1 deg of the cold start of the same triple."""
+    seq = _sequence(3 + 2 * stride)
+    state = ChainState(stride=stride)
+    results = [compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS, state)
+               for k in range(0, 2 * stride + 1, stride)]
+    assert [r.warm for r in results] == [False, True, True]
+    assert (state.warm_starts, state.cold_starts) == (2, 1)
+    for k, warm in zip(range(0, 2 * stride + 1, stride), results, strict=True):
+        cold = compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS)
+        assert not cold.warm
+        for a, b, bound in ((warm.flow, cold.flow, 0.05), (warm.disparity, cold.disparity, 0.05),
+                            (warm.disparity_change, cold.disparity_change, 0.02)):
+            assert np.median(np.abs(a[REGION] - b[REGION])) < bound
+        vw, vc = _mean_velocity(warm), _mean_velocity(cold)
+        assert abs(np.linalg.norm(vw) / np.linalg.norm(vc) - 1) < 0.02
+        cos = vw @ vc / np.linalg.norm(vw) / np.linalg.norm(vc)
+        assert np.degrees(np.arccos(min(cos, 1.0))) < 1.0
+
+
+def test_non_consecutive_triple_never_uses_a_warm_start() -> None:
+    seq = _sequence(8)
+    state = ChainState()
+    assert not compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, state).warm
+    assert compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, state).warm
+    # A dropped frame (triple 3 after triple 1), a repeated and an earlier triple: cold.
+    for k in (3, 3, 1):
+        res = compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS, state)
+        assert not res.warm, k
+    # A stride-1 state does not take a triple two frames on as consecutive.
+    assert not compute_scene_flow(*_triple(seq, 3), GEOMETRY, PARAMS, state).warm
+    assert compute_scene_flow(*_triple(seq, 4), GEOMETRY, PARAMS, state).warm
+    # A stride-2 state takes exactly the triple two frames on.
+    s2 = ChainState(stride=2)
+    compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, s2)
+    assert not compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, s2).warm
+    assert compute_scene_flow(*_triple(seq, 3), GEOMETRY, PARAMS, s2).warm
+
+
+def test_warm_start_can_be_switched_off_and_the_state_reset() -> None:
+    seq = _sequence(5)
+    off = dataclasses.replace(PARAMS, warm_start=False)
+    state = ChainState()
+    for k in range(3):
+        assert not compute_scene_flow(*_triple(seq, k), GEOMETRY, off, state).warm
+    state = ChainState()
+    compute_scene_flow(*_triple(seq, 0), GEOMETRY, PARAMS, state)
+    state.reset()
+    assert not compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, state).warm
+
+
+def test_bad_stride_raises() -> None:
+    with pytest.raises(ValueError, match="stride"):
+        ChainState(stride=3)
+
+
+def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> None:
+    """Curves and rectification maps: the chain's per-frame cache gives exactly the
+    differential images of pre-processing the raw triple directly."""
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.preprocess import preprocess_stereo
+
+    seq = _sequence(4)
+    h, w = SIZE
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    maps = (xx + 0.3, yy - 0.2)  # a small rectifying shift
+    curves = (CharacteristicCurve(offset=900.0, gain=2.0e4, curvature=-300.0),
+              CharacteristicCurve(offset=1100.0, gain=1.9e4))
+    geo = dataclasses.replace(GEOMETRY, maps_left=maps, maps_right=maps,
+                              curve_left=curves[0], curve_right=curves[1])
+    params = dataclasses.replace(PARAMS, diff_scale=0.01)
+    state = ChainState()
+    for k in range(2):
+        res = compute_scene_flow(*_triple(seq, k), geo, params, state)
+        left, right, _ = _triple(seq, k)
+        pl, pr = preprocess_stereo(left, right, scale=0.01, curves=curves, maps=(maps, maps),
+                                   register=False)
+        for got, want in ((res.diff_left, (pl.diff0, pl.diff1)),
+                          (res.diff_right, (pr.diff0, pr.diff1))):
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+    assert state.frames_reused == 4  # t1, t2 of both cameras in the second triple
+
+
+def test_known_registration_shift_only_for_the_next_triple_at_stride_1() -> None:
+    from processing.temporal import known_shift01
+
+    state = ChainState()
+    state.previous_times = (0.0, 1.0, 2.0)
+    state.shift01 = ((0.1, 0.0), (0.0, -0.2))
+    assert known_shift01(state, (1.0, 2.0, 3.0)) == ((0.1, 0.0), (0.0, -0.2))
+    assert known_shift01(state, (2.0, 3.0, 4.0)) == (None, None)
+    assert known_shift01(None, (1.0, 2.0, 3.0)) == (None, None)
+    s2 = ChainState(stride=2, previous_times=(0.0, 1.0, 2.0), shift01=state.shift01)
+    assert known_shift01(s2, (2.0, 3.0, 4.0)) == (None, None)  # t1 -> t2 is not t2 -> t3
