@@ -27,6 +27,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.calibrate",
     "appliance.commands.calibrate_gascell",
     "appliance.commands.eval_footage",
+    "appliance.commands.eval_detection",
     "appliance.commands.simulate",
     "appliance.commands.eval_stereo",
     "appliance.commands.wind_decode",

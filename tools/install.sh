@@ -17,8 +17,10 @@ if [ "$dev" = 1 ]; then
     # gige extra, built from source) compiles against; iproute2 (ip) for the fake cameras'
     # private network namespace.
     # mosquitto: the MQTT broker the alarm tests publish to (127.0.0.1, a free port).
+    # chromium + tesseract-ocr: the browser test of the live view (playwright drives Debian's
+    # chromium through executable_path; the viewer draws on a canvas, so OCR reads titles).
     apt_packages+=(systemd gir1.2-aravis-0.8 aravis-tools gcc libgirepository1.0-dev
-                   libcairo2-dev pkg-config iproute2 mosquitto)
+                   libcairo2-dev pkg-config iproute2 mosquitto chromium tesseract-ocr)
 fi
 
 missing=()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import re
 import statistics
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -177,6 +178,64 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     return {"mean": float(np.mean(values)), "min": float(min(values)), "max": float(max(values))}
 
 
+@dataclass
+class MonoTriple:
+    """One consecutive triple (N, N+1, N+2) of a single-camera set, through the chain's
+    first stages: raw frame N, I_diff(N) in [0, 1], flow (Eq. 5), gas mask (Eq. 9)."""
+
+    frame: int
+    raw: np.ndarray
+    diff: np.ndarray
+    flow: np.ndarray
+    mask: np.ndarray
+    activity_ratio: float
+    shifts: tuple[tuple[float, float], tuple[float, float]]
+    timings_ms: dict[str, float]
+
+
+def iter_mono_triples(name: str, frames: list[tuple[int, Path]], settings: FootageSettings
+                      ) -> Iterator[MonoTriple]:
+    """Pre-processing, flow and segmentation of every consecutive triple of one set.
+
+    Raises
+    ------
+    ValueError
+        An unreadable image, or frames of one triple that differ in size.
+    """
+    from processing.optical_flow import brox_optical_flow
+    from processing.preprocess import preprocess_camera
+    from processing.segmentation import segment_gas
+
+    paths = dict(frames)
+    shift01 = None
+    prev_n = None
+    cache: dict[int, np.ndarray] = {}
+    for first, last in consecutive_runs([n for n, _ in frames]):
+        for n in range(first, last - 1):
+            imgs = []
+            for k in (n, n + 1, n + 2):
+                if k not in cache:
+                    cache[k] = read_frame(paths[k])
+                imgs.append(cache[k])
+            cache.pop(n - 1, None)
+            if imgs[0].shape != imgs[1].shape or imgs[0].shape != imgs[2].shape:
+                raise ValueError(f"{name}: frames {n}..{n + 2} differ in size")
+            t0 = time.perf_counter()
+            pre = preprocess_camera(imgs, scale=settings.scale, register=settings.register,
+                                    denoise_lambda=settings.denoise_lambda,
+                                    shift01=shift01 if prev_n == n - 1 else None)
+            t1 = time.perf_counter()
+            flow = brox_optical_flow(pre.diff0, pre.diff1)
+            t2 = time.perf_counter()
+            seg = segment_gas(pre.diff0, flow, min_activity_ratio=settings.min_activity_ratio)
+            t3 = time.perf_counter()
+            shift01, prev_n = pre.shifts[1], n
+            yield MonoTriple(n, imgs[0], pre.diff0, flow, seg.mask, float(seg.activity_ratio),
+                             (tuple(pre.shifts[0]), tuple(pre.shifts[1])),  # type: ignore[arg-type]
+                             {"preprocess": (t1 - t0) * 1e3, "flow": (t2 - t1) * 1e3,
+                              "segmentation": (t3 - t2) * 1e3})
+
+
 def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str | None = None,
                      figure_frame: int | None = None) -> FootageReport:
     """Run the chain's first stages on every consecutive triple of every set under ``data``.
@@ -200,10 +259,6 @@ def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str |
         No sets, no set matching ``figure_set``, an unreadable image, or frames of one
         triple that differ in size.
     """
-    from processing.optical_flow import brox_optical_flow
-    from processing.preprocess import preprocess_camera
-    from processing.segmentation import segment_gas
-
     sets = find_sets(data)
     if figure_set is not None:
         match = next((name for name in sets if figure_set in name), None)
@@ -215,51 +270,27 @@ def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str |
     best_key = -np.inf
     for name, frames in sets.items():
         numbers = [n for n, _ in frames]
-        paths = dict(frames)
         runs = consecutive_runs(numbers)
         per_frame = []
-        shift01 = None
-        prev_n = None
-        cache: dict[int, np.ndarray] = {}
-        for first, last in runs:
-            for n in range(first, last - 1):
-                imgs = []
-                for k in (n, n + 1, n + 2):
-                    if k not in cache:
-                        cache[k] = read_frame(paths[k])
-                    imgs.append(cache[k])
-                cache.pop(n - 1, None)
-                if imgs[0].shape != imgs[1].shape or imgs[0].shape != imgs[2].shape:
-                    raise ValueError(f"{name}: frames {n}..{n + 2} differ in size")
-                t0 = time.perf_counter()
-                pre = preprocess_camera(imgs, scale=settings.scale, register=settings.register,
-                                        denoise_lambda=settings.denoise_lambda,
-                                        shift01=shift01 if prev_n == n - 1 else None)
-                t1 = time.perf_counter()
-                flow = brox_optical_flow(pre.diff0, pre.diff1)
-                t2 = time.perf_counter()
-                seg = segment_gas(pre.diff0, flow,
-                                  min_activity_ratio=settings.min_activity_ratio)
-                t3 = time.perf_counter()
-                timings["preprocess"].append((t1 - t0) * 1e3)
-                timings["flow"].append((t2 - t1) * 1e3)
-                timings["segmentation"].append((t3 - t2) * 1e3)
-                shift01, prev_n = pre.shifts[1], n
-                mag = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
-                per_frame.append({
-                    "frame": n,
-                    "gas_fraction": float(seg.mask.mean()),
-                    "gas_pixels": int(seg.mask.sum()),
-                    "activity_ratio": float(seg.activity_ratio),
-                    "shift01_px": [round(v, 4) for v in pre.shifts[0]],
-                    "shift12_px": [round(v, 4) for v in pre.shifts[1]],
-                    "flow_median_px": float(np.median(mag)),
-                })
-                if name == figure_set and figure_frame in (None, n):
-                    key = seg.activity_ratio if seg.mask.any() else -1.0
-                    if key > best_key:
-                        best_key = key
-                        report.figure = FigureFrame(name, n, imgs[0], pre.diff0, flow, seg.mask)
+        for tr in iter_mono_triples(name, frames, settings):
+            for stage, ms in tr.timings_ms.items():
+                timings[stage].append(ms)
+            mag = np.sqrt(tr.flow[..., 0] ** 2 + tr.flow[..., 1] ** 2)
+            per_frame.append({
+                "frame": tr.frame,
+                "gas_fraction": float(tr.mask.mean()),
+                "gas_pixels": int(tr.mask.sum()),
+                "activity_ratio": float(tr.activity_ratio),
+                "shift01_px": [round(v, 4) for v in tr.shifts[0]],
+                "shift12_px": [round(v, 4) for v in tr.shifts[1]],
+                "flow_median_px": float(np.median(mag)),
+            })
+            if name == figure_set and figure_frame in (None, tr.frame):
+                key = tr.activity_ratio if tr.mask.any() else -1.0
+                if key > best_key:
+                    best_key = key
+                    report.figure = FigureFrame(name, tr.frame, tr.raw, tr.diff, tr.flow,
+                                                tr.mask)
         fractions = [e["gas_fraction"] for e in per_frame]
         report.sets[name] = {
             "runs": [list(r) for r in runs],

@@ -1,4 +1,12 @@
-"""The live view's layout, declared in code as a Rerun blueprint."""
+"""The live view's layout, declared in code as a Rerun blueprint.
+
+Two tabs. ``operator`` answers an operator's questions at a glance: the left camera's IR
+picture with the gas region in colour and the in-plane gas velocity as arrows (as OGI
+cameras show gas), the status in words (LEAK / no leak, rate, duration, wind, health), the
+emission rate and wind over time, and the list of leak events. ``engineering`` holds the
+fields of the method (differential images, flow, disparity, mask, 3D velocity) and the
+paper's Fig. 8 comparison of gas velocity and wind, plus health.
+"""
 
 from __future__ import annotations
 
@@ -8,13 +16,21 @@ __all__ = ["blueprint"]
 
 
 def blueprint() -> Any:
-    """The viewer layout: images and 3D velocity left, the Fig. 8 comparison and health right.
-
-    Returns a ``rerun.blueprint.Blueprint`` (typed Any: rerun is imported only here, when a
-    view starts).
-    """
+    """The viewer layout (a ``rerun.blueprint.Blueprint``; rerun is imported only here)."""
     import rerun.blueprint as rrb
 
+    operator = rrb.Horizontal(
+        rrb.Spatial2DView(origin="operator/ir", name="gas camera (left IR) with gas"),
+        rrb.Vertical(
+            rrb.TextDocumentView(origin="operator/status", name="status"),
+            rrb.TimeSeriesView(origin="operator", contents=["+ operator/rate/**",
+                                                            "+ operator/wind"],
+                               name="emission rate (kg/h) and wind (m/s)"),
+            rrb.TextDocumentView(origin="operator/events", name="leak events"),
+            row_shares=[2, 2, 2],
+        ),
+        column_shares=[3, 2], name="operator",
+    )
     images = rrb.Grid(
         rrb.Spatial2DView(origin="cam/left/diff", name="left differential image"),
         rrb.Spatial2DView(origin="cam/right/diff", name="right differential image"),
@@ -30,7 +46,8 @@ def blueprint() -> Any:
         rrb.TimeSeriesView(origin="plots/angle/z", name="angle to Z (deg)"),
         rrb.TimeSeriesView(origin="health", name="health"),
     )
+    engineering = rrb.Horizontal(images, plots, column_shares=[3, 2], name="engineering")
     # A live view follows the newest data on the pair-index timeline.
     time_panel = rrb.TimePanel(timeline="frame", play_state="following")
-    return rrb.Blueprint(rrb.Horizontal(images, plots, column_shares=[3, 2]), time_panel,
+    return rrb.Blueprint(rrb.Tabs(operator, engineering, active_tab=0), time_panel,
                          collapse_panels=True)

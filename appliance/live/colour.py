@@ -9,7 +9,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["disparity_bgr", "encode_jpeg", "flow_bgr", "to_u8"]
+__all__ = ["disparity_bgr", "encode_jpeg", "flow_bgr", "ir_u8", "to_u8"]
 
 
 def to_u8(img: np.ndarray) -> np.ndarray:
@@ -28,6 +28,18 @@ def to_u8(img: np.ndarray) -> np.ndarray:
     lo, hi = float(a.min()), float(a.max())
     scale = 255.0 / (hi - lo) if hi > lo else 0.0
     return ((a.astype(np.float32) - lo) * scale).astype(np.uint8)
+
+
+def ir_u8(raw: np.ndarray, low_pct: float = 1.0, high_pct: float = 99.0) -> np.ndarray:
+    """Raw IR counts as display bytes with the automatic gain of an OGI camera.
+
+    A percentile stretch (``low_pct``..``high_pct`` to 0..255) rather than min-max, so one
+    hot or dead pixel does not flatten the scene; black = cold, white = warm.
+    """
+    a = np.asarray(raw, np.float32)
+    lo, hi = np.percentile(a, [low_pct, high_pct])
+    scale = 255.0 / (hi - lo) if hi > lo else 0.0
+    return np.clip((a - lo) * scale, 0.0, 255.0).astype(np.uint8)
 
 
 def flow_bgr(flow: np.ndarray, max_magnitude: float | None = None) -> np.ndarray:

@@ -26,8 +26,7 @@ import contextlib
 import logging
 import queue
 import threading
-from collections.abc import Mapping
-from dataclasses import dataclass
+import time
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +35,10 @@ import numpy as np
 from appliance.config import LiveConfig
 from appliance.live import MAX_ARROWS
 from appliance.live.blueprint import blueprint
-from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, to_u8
+from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, ir_u8, to_u8
+from appliance.live.items import LiveFrame, LiveScalars, LiveStats, health_scalars
 from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
+from appliance.live.status import OperatorStatus, events_markdown, status_markdown
 
 __all__ = [
     "LiveFrame",
@@ -55,77 +56,8 @@ GAS_COLOR = (230, 120, 20)
 WIND_COLOR = (30, 110, 230)
 #: Arrows show the displacement over this many seconds (velocity in m/s times this).
 ARROW_SCALE_S = 0.2
-
-
-@dataclass
-class LiveFrame:
-    """What the live view shows for one processed stereo pair; every image field is optional.
-
-    The arrays must belong to this item (not views into the ring buffer): the live thread
-    reads them later.
-
-    Attributes
-    ----------
-    frame
-        Pair index (the ``frame`` timeline).
-    t_capture_ns
-        Capture time of the pair, UNIX ns (the ``capture_time`` timeline).
-    diff_left, diff_right
-        (H, W) differential images (paper Eq. 2), float in [0, 1], uint8 or uint16.
-    flow
-        (H, W, 2) optical flow w_L = (u, v) in px/frame (Eq. 5), shown colour-coded.
-    disparity
-        (H, W) disparity d_L in px (Eq. 6); NaN where undefined.
-    gas_mask
-        (H, W) bool gas segmentation (Eq. 9).
-    points3d, velocity3d
-        (N, 3) points of the virtual gas surface (m) and their 3D velocity V (m/s, Eq. 4),
-        left camera frame.
-    gas_speed_m_s, gas_angles_deg
-        Mean gas velocity magnitude and directional angles to X, Y, Z (paper footnote 1).
-    wind_speed_m_s, wind_angles_deg
-        The anemometer's wind in the camera frame at this pair's time.
-    truth_speed_m_s, truth_angles_deg
-        Simulated runs only: the simulator's true mean gas velocity for this triple.
-    """
-
-    frame: int
-    t_capture_ns: int
-    diff_left: np.ndarray | None = None
-    diff_right: np.ndarray | None = None
-    flow: np.ndarray | None = None
-    disparity: np.ndarray | None = None
-    gas_mask: np.ndarray | None = None
-    points3d: np.ndarray | None = None
-    velocity3d: np.ndarray | None = None
-    gas_speed_m_s: float | None = None
-    gas_angles_deg: tuple[float, float, float] | None = None
-    wind_speed_m_s: float | None = None
-    wind_angles_deg: tuple[float, float, float] | None = None
-    truth_speed_m_s: float | None = None
-    truth_angles_deg: tuple[float, float, float] | None = None
-
-
-@dataclass
-class LiveScalars:
-    """Scalars logged under ``prefix/<name>`` (e.g. health: ``health/cam_left_rate_hz``)."""
-
-    t_capture_ns: int
-    values: Mapping[str, float | None]
-    prefix: str = "health"
-    frame: int | None = None
-
-
-@dataclass
-class LiveStats:
-    """Counters of the live view."""
-
-    pushed: int = 0
-    dropped: int = 0
-    logged: int = 0
-    errors: int = 0
-    last_error: str = ""
-    url: str = ""
+#: Operator view: px of arrow per m/s of in-plane gas velocity.
+ARROW_PX_PER_M_S = 12.0
 
 
 # --------------------------------------------------------------------------- the view
@@ -142,9 +74,14 @@ class LiveView:
         The ``live`` section of the configuration.
     server_memory_limit
         Serve mode: how much the gRPC server buffers for late viewers.
+    max_image_hz
+        Images (the heavy part) are sent at most this often; scalars, text and plots with
+        every result. A browser on the appliance's own two cores decodes a few JPEGs per
+        second; more piles up in its queue as display latency.
     """
 
-    def __init__(self, cfg: LiveConfig, *, server_memory_limit: str = "512MB") -> None:
+    def __init__(self, cfg: LiveConfig, *, server_memory_limit: str = "512MB",
+                 max_image_hz: float = 5.0) -> None:
         self.cfg = cfg
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=cfg.queue_size)
         self._lock = threading.Lock()
@@ -155,10 +92,12 @@ class LiveView:
         self._server: ViewerServer | None = None
         self._memory_limit = server_memory_limit
         self._styled: set[str] = set()
+        self._image_period_ns = int(1e9 / max_image_hz) if max_image_hz > 0 else 0
+        self._last_image_ns = 0
 
     # ------------------------------------------------------------------ producer side
 
-    def push(self, item: LiveFrame | LiveScalars) -> bool:
+    def push(self, item: LiveFrame | LiveScalars | OperatorStatus) -> bool:
         """Queue an item for display; never blocks. False (and counted) when dropped."""
         if self._thread is None:
             return False
@@ -276,6 +215,8 @@ class LiveView:
             try:
                 if isinstance(item, LiveFrame):
                     self._log_frame(item)
+                elif isinstance(item, OperatorStatus):
+                    self._log_status(item)
                 else:
                     self._log_scalars(item)
                 with self._lock:
@@ -299,6 +240,15 @@ class LiveView:
                 self._log(f"plots/{quantity}/{src}",
                           rr.SeriesLines(colors=[color], names=[label], widths=[2.0]),
                           static=True)
+        # The gas overlay of the operator's picture: class 1 = gas, in the gas colour.
+        self._log("operator/ir", rr.AnnotationContext(
+            [(0, "background", (0, 0, 0, 0)), (1, "gas", GAS_COLOR)]), static=True)
+        for name, color, label in (("measured", GAS_COLOR, "emission rate (kg/h)"),
+                                   ("truth", (0, 0, 0), "simulated release (kg/h)")):
+            self._log(f"operator/rate/{name}",
+                      rr.SeriesLines(colors=[color], names=[label], widths=[2.0]), static=True)
+        self._log("operator/wind", rr.SeriesLines(colors=[WIND_COLOR], names=["wind (m/s)"],
+                                                  widths=[2.0]), static=True)
 
     def _set_time(self, frame: int | None, t_ns: int) -> None:
         if frame is not None:
@@ -315,6 +265,12 @@ class LiveView:
         import rerun as rr
 
         self._set_time(f.frame, f.t_capture_ns)
+        self._log_plots(f)
+        now = time.monotonic_ns()
+        if now - self._last_image_ns < self._image_period_ns:
+            return  # images at most max_image_hz: the browser must keep up (latency)
+        self._last_image_ns = now
+        self._log_operator(f)
         if f.diff_left is not None:
             self._image("cam/left/diff", to_u8(f.diff_left))
         if f.diff_right is not None:
@@ -335,6 +291,10 @@ class LiveView:
                 pts, vel = pts[keep], vel[keep]
             self._log("gas/velocity3d", rr.Arrows3D(origins=pts, vectors=vel * ARROW_SCALE_S,
                                                     colors=[GAS_COLOR]))
+
+    def _log_plots(self, f: LiveFrame) -> None:
+        import rerun as rr
+
         for src, speed, angles in (("gas", f.gas_speed_m_s, f.gas_angles_deg),
                                    ("wind", f.wind_speed_m_s, f.wind_angles_deg),
                                    ("truth", f.truth_speed_m_s, f.truth_angles_deg)):
@@ -345,6 +305,41 @@ class LiveView:
                     if a is not None and np.isfinite(a):
                         self._log(f"plots/angle/{axis}/{src}", rr.Scalars(float(a)))
 
+    def _log_operator(self, f: LiveFrame) -> None:
+        """The operator's picture: raw IR, the gas region in colour, in-plane velocity."""
+        import rerun as rr
+
+        if f.raw_left is None:
+            return
+        self._image("operator/ir", ir_u8(f.raw_left))
+        if f.gas_mask is not None:
+            self._log("operator/ir/gas", rr.SegmentationImage(
+                np.asarray(f.gas_mask, np.uint8), opacity=0.45))
+        if f.pixels is not None and f.velocity3d is not None and len(f.pixels):
+            pix = np.asarray(f.pixels, np.float32).reshape(-1, 2)
+            vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)
+            ok = np.isfinite(vel).all(1)
+            pix, vel = pix[ok], vel[ok]
+            if len(pix) > MAX_ARROWS // 4:  # a readable picture: fewer, longer arrows
+                keep = np.linspace(0, len(pix) - 1, MAX_ARROWS // 4).astype(int)
+                pix, vel = pix[keep], vel[keep]
+            self._log("operator/ir/velocity", rr.Arrows2D(
+                origins=pix, vectors=vel[:, :2] * ARROW_PX_PER_M_S, colors=[GAS_COLOR]))
+
+    def _log_status(self, s: OperatorStatus) -> None:
+        import rerun as rr
+
+        self._set_time(None, s.t_capture_ns)
+        self._log("operator/status", rr.TextDocument(status_markdown(s),
+                                                     media_type=rr.MediaType.MARKDOWN))
+        self._log("operator/events", rr.TextDocument(events_markdown(s.events),
+                                                     media_type=rr.MediaType.MARKDOWN))
+        for name, v in (("measured", s.rate_kg_h), ("truth", s.true_rate_kg_h)):
+            if v is not None and np.isfinite(v):
+                self._log(f"operator/rate/{name}", rr.Scalars(float(v)))
+        if s.wind_m_s is not None and all(np.isfinite(s.wind_m_s)):
+            self._log("operator/wind", rr.Scalars(float(np.linalg.norm(s.wind_m_s))))
+
     def _log_scalars(self, s: LiveScalars) -> None:
         import rerun as rr
 
@@ -352,19 +347,3 @@ class LiveView:
         for name, value in s.values.items():
             if value is not None and np.isfinite(value):
                 self._log(f"{s.prefix}/{name}", rr.Scalars(float(value)))
-
-
-def health_scalars(snapshot: Any) -> LiveScalars:
-    """A :class:`LiveScalars` of the numbers worth plotting from a health snapshot."""
-    values: dict[str, float | None] = {}
-    for name, s in snapshot.streams.items():
-        key = name.replace("/", "_")
-        values[f"{key}_rate_hz"] = s.rate_hz
-        values[f"{key}_drops"] = float(s.drops)
-    for name, lat in snapshot.latencies.items():
-        values[f"{name.replace('/', '_')}_latency_ms"] = lat["mean_ms"]
-    for name, v in snapshot.counters.items():
-        values[name] = float(v)
-    values.update(snapshot.gauges)
-    return LiveScalars(t_capture_ns=snapshot.t_wall_ns, values=values)
-

@@ -22,6 +22,7 @@ from appliance.recording.message import MessageSchema
 
 __all__ = [
     "HEALTH",
+    "LEAK_EVENT",
     "SCENEFLOW_SUMMARY",
     "STEREO_PAIR",
     "WIND_CAMERA",
@@ -142,6 +143,29 @@ SCENEFLOW_SUMMARY = _json_schema(
     },
     ["t_mono_ns", "t_wall_ns", "pair_index", "gas_pixels", "mean_velocity_m_s", "speed_m_s",
      "angles_deg", "c_usf", "valid", "flags"],
+)
+
+_XY_OR_NULL = {"type": ["array", "null"], "items": _NUM, "minItems": 2, "maxItems": 2}
+LEAK_EVENT = _json_schema(
+    "ogiflow.LeakEvent",
+    "Leak event change",
+    "A leak event started, is ongoing (update) or ended (appliance.runtime.events). Times "
+    "are UNIX seconds of the daemon's clock; rates in g/s; positions in the left image (px) "
+    "and the left camera frame (m).",
+    {
+        "t_wall_ns": {**_INT, "description": "time of the frame that caused the change"},
+        "kind": {"enum": ["start", "update", "end"]},
+        "id": {**_INT, "minimum": 1},
+        "start_t_s": _NUM, "start_frame": _INT,
+        "end_t_s": _NUM_OR_NULL, "end_frame": _INT_OR_NULL,
+        "end_reason": {"type": "string"},
+        "source_xy": _XY_OR_NULL, "source_xyz_m": _VEC3_OR_NULL,
+        "peak_rate_g_s": _NUM_OR_NULL, "mean_rate_g_s": _NUM_OR_NULL,
+        "mean_velocity_m_s": _VEC3_OR_NULL, "mean_wind_m_s": _VEC3_OR_NULL,
+        "confidence": {**_NUM, "minimum": 0, "maximum": 1},
+        "frames": {**_INT, "minimum": 0}, "positive_frames": {**_INT, "minimum": 0},
+    },
+    ["t_wall_ns", "kind", "id", "start_t_s", "start_frame", "confidence"],
 )
 
 _STREAM_STATS = {

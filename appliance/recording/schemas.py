@@ -34,6 +34,7 @@ from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 
 from appliance.recording.jsonschemas import (
     HEALTH,
+    LEAK_EVENT,
     SCENEFLOW_SUMMARY,
     STEREO_PAIR,
     WIND_CAMERA,
@@ -51,6 +52,7 @@ __all__ = [
     "FRAME_INFO",
     "GRID",
     "HEALTH",
+    "LEAK_EVENT",
     "RAW_IMAGE",
     "SCENEFLOW_SUMMARY",
     "STEREO_PAIR",
@@ -186,4 +188,5 @@ TOPICS: dict[str, MessageSchema] = {
     "/sceneflow/mask": COMPRESSED_IMAGE,
     "/sceneflow/summary": SCENEFLOW_SUMMARY,
     "/health": HEALTH,
+    "/events": LEAK_EVENT,
 }

@@ -171,10 +171,13 @@ class Appliance:
             stack.callback(self._restore_signals)
             self._start_recording(stack)
             self._start_live(stack)
+            self.monitor = self._make_monitor()
+            stack.callback(self.monitor.close)
             self.publisher = ResultPublisher(
                 self.recorder, self.live, self.wall_ns, self.cfg.recording.fields_every,
                 wind_at=self.history.at,
-                truth_for=self._truth_for if self.site.truth is not None else None)
+                truth_for=self._truth_for if self.site.truth is not None else None,
+                monitor=self.monitor)
             self._start_processing(stack)
             self._start_health(stack)
             self._start_acquisition(stack)
@@ -262,6 +265,18 @@ class Appliance:
             self._workers_done.set()
         self._spawn(self._results_loop, "results", results)
 
+    def _make_monitor(self) -> Any:
+        """Leak events, emission-rate window and the operator's status (runtime.monitor)."""
+        from appliance.runtime.events import EventConfig
+        from appliance.runtime.monitor import LeakMonitor
+
+        assert self.geometry is not None and self.site is not None
+        true_rate = (self.cfg.simulation.release_rate_g_s if self.site.truth is not None
+                     else None)
+        return LeakMonitor(EventConfig(), self.geometry.image_size, live=self.live,
+                           on_event=lambda kind, ev: self.publisher.record_event(kind, ev),
+                           true_rate_g_s=true_rate)
+
     def _start_health(self, stack: contextlib.ExitStack) -> None:
         from appliance.runtime.health import (
             HealthReporter,
@@ -276,6 +291,7 @@ class Appliance:
             sinks.append(mcap_sink(self.recorder))
         if self.live is not None:
             sinks.append(live_sink(self.live))
+        sinks.append(self.monitor.on_health)
         self.health.add_counters(self._health_counters)
         if self.cfg.recording.enabled:
             self.health.add_gauges(disk_free_source(self.cfg.recording.dir))

@@ -35,17 +35,21 @@ class ResultPublisher:
         Host monotonic ns -> ``WindAt`` (the anemometer's wind in the camera frame).
     truth_for : callable, optional
         Pair index of t0 -> simulator ground-truth mean velocity (simulated runs).
+    monitor : LeakMonitor, optional
+        Gets every result for the leak events, the rate window and the operator's status.
     """
 
     def __init__(self, recorder: Any, live: Any, wall_ns: Callable[[int], int],
                  fields_every: int, *, wind_at: Callable[[int], Any] | None = None,
-                 truth_for: Callable[[int], np.ndarray | None] | None = None) -> None:
+                 truth_for: Callable[[int], np.ndarray | None] | None = None,
+                 monitor: Any = None) -> None:
         self.recorder = recorder
         self.live = live
         self.wall_ns = wall_ns
         self.fields_every = fields_every
         self.wind_at = wind_at
         self.truth_for = truth_for
+        self.monitor = monitor
         self.published = 0
         self.errors = 0
         #: (t1, truth or None, summary dict) of every published result.
@@ -104,7 +108,18 @@ class ResultPublisher:
             self._record_fields(res, t1)
         if self.live is not None:
             self._push_live(res, summary, wind, truth, t1)
+        if self.monitor is not None and res.gas_mask is not None and res.flow is not None:
+            self.monitor.on_result(summary["t_wall_ns"], res.pair_indices[1], res.gas_mask,
+                                   res.flow, summary, wind=wind)
         return summary
+
+    def record_event(self, kind: str, event: dict[str, Any]) -> None:
+        """The ``/events`` message of a leak-event change (start, update, end)."""
+        t_wall = int(event["t_wall_ns"])
+        if kind == "update" and event.get("frames", 0) % 30:
+            return  # updates about once a second; start and end always
+        self.record_json("/events", schemas.LEAK_EVENT, {"kind": kind, **event},
+                         t_wall - (self.wall_ns(0)))
 
     def _wind(self, t_mono: int, pair_index: int) -> np.ndarray | None:
         if self.wind_at is None:
@@ -132,6 +147,7 @@ class ResultPublisher:
             diff_left=res.diff_left, diff_right=res.diff_right, flow=res.flow,
             disparity=np.where(res.valid, res.disparity, np.nan).astype(np.float32),
             gas_mask=res.gas_mask, points3d=res.points3d, velocity3d=res.velocity3d,
+            pixels=res.pixels, raw_left=res.raw_left,
             gas_speed_m_s=summary["speed_m_s"] if ok else None,
             gas_angles_deg=tuple(summary["angles_deg"]) if ok and summary["angles_deg"]
             else None,

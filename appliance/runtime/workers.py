@@ -64,14 +64,18 @@ class WorkerResult:
     gas_mask: np.ndarray | None = None  # bool
     points3d: np.ndarray | None = None  # (N, 3) m, gas pixels only
     velocity3d: np.ndarray | None = None  # (N, 3) m/s
+    pixels: np.ndarray | None = None  # (N, 2) int32 (x, y) of those gas pixels
+    raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
 
 
 def _to_u8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
 
 
-def pack_result(res: SceneFlowResult, base: WorkerResult) -> WorkerResult:
-    """Fill ``base`` with what the daemon needs from a chain result."""
+def pack_result(res: SceneFlowResult, base: WorkerResult,
+                raw_left: np.ndarray | None = None) -> WorkerResult:
+    """Fill ``base`` with what the daemon needs from a chain result (and the raw left frame
+    at t0, which the operator's view shows under the gas overlay)."""
     base.summary = res.summary.to_dict()
     base.timings_ms = dict(res.timings_ms)
     base.dt_s = res.dt_s
@@ -90,6 +94,10 @@ def pack_result(res: SceneFlowResult, base: WorkerResult) -> WorkerResult:
         sel = sel[:: int(np.ceil(sel.size / MAX_ARROWS))]
     base.points3d = res.position.reshape(-1, 3)[sel].copy()
     base.velocity3d = res.velocity.reshape(-1, 3)[sel].copy()
+    w = res.gas_mask.shape[1]
+    base.pixels = np.column_stack([sel % w, sel // w]).astype(np.int32)
+    if raw_left is not None:
+        base.raw_left = np.array(raw_left, copy=True)
     return base
 
 
@@ -181,7 +189,7 @@ def worker_main(
             torn = 0
             try:
                 res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
-                pack_result(res, base)
+                pack_result(res, base, raw_left=left[0])
             except ValueError as exc:  # bad frames: reported, the worker goes on
                 base.error = f"{type(exc).__name__}: {exc}"
             except Exception:

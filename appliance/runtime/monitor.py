@@ -1,0 +1,153 @@
+"""The unattended monitor: leak events, emission rate window, status, alarms.
+
+Runs in the daemon's results thread (it is cheap: a few mask operations per result) and
+fans out to sinks that never block: the recorder (``/events``), the alarm sinks (MQTT) and
+the live view's operator tab. The decisions themselves are pure
+(:mod:`appliance.runtime.events`, :mod:`processing.emission.rate`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from appliance.live.status import OperatorStatus, health_words
+from appliance.runtime.events import (
+    EventConfig,
+    LeakDetector,
+    LeakEvent,
+    evidence_from_fields,
+    zone_mask,
+)
+from processing.emission.rate import FrameRate, RateEstimate, RateWindow
+
+log = logging.getLogger("ogiflow.monitor")
+
+
+class LeakMonitor:
+    """Feeds every result into the event logic and the rate window; reports changes.
+
+    Parameters
+    ----------
+    events : EventConfig
+        Thresholds and zones.
+    image_size : (int, int)
+        (W, H) of the left image (for the zones).
+    rate_window_s : float
+        Window of the emission-rate average, s.
+    on_event : callable
+        ``(kind, event_dict)`` for every start/update/end (recorder, alarm sinks).
+    alarm_sinks : sequence
+        :class:`appliance.alarms.sink.AlarmSink` objects (status and summaries too).
+    live : LiveView or None
+        Receives :class:`OperatorStatus` items.
+    true_rate_g_s : float or None
+        Simulated runs: the simulator's release rate, shown beside the measurement.
+    """
+
+    def __init__(self, events: EventConfig, image_size: tuple[int, int], *,
+                 rate_window_s: float = 30.0,
+                 on_event: Callable[[str, dict[str, Any]], None] | None = None,
+                 alarm_sinks: Sequence[Any] = (), live: Any = None,
+                 true_rate_g_s: float | None = None) -> None:
+        w, h = image_size
+        self.detector = LeakDetector(events)
+        self.zones = zone_mask((h, w), events.watch_zones, events.ignore_zones)
+        self.window = RateWindow(rate_window_s)
+        self.on_event = on_event
+        self.sinks = list(alarm_sinks)
+        self.live = live
+        self.true_rate_g_s = true_rate_g_s
+        self.rate: RateEstimate | None = None
+        self.wind: tuple[float, float, float] | None = None
+        self._health: list[str] = []
+        self._t_wall_ns = 0
+        self._frame = 0
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ inputs
+
+    def on_result(self, t_wall_ns: int, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
+                  summary: dict[str, Any], *, wind: np.ndarray | None = None,
+                  rate: FrameRate | None = None) -> None:
+        """One published result (results thread).
+
+        ``t_wall_ns`` is the daemon's wall time of the frame, a fixed offset from the
+        monotonic clock (a step of the wall clock does not change event durations).
+        """
+        t_s = t_wall_ns / 1e9
+        rate = rate or FrameRate(None, (), "no emission estimate")
+        with self._lock:
+            self.rate = self.window.push(t_s, rate)
+            self.wind = None if wind is None else tuple(float(v) for v in wind)  # type: ignore[assignment]
+            self._t_wall_ns, self._frame = t_wall_ns, frame
+            velocity = summary.get("mean_velocity_m_s")
+            ev = evidence_from_fields(
+                t_s, frame, gas_mask, flow, self.zones, rate_g_s=rate.rate_g_s,
+                velocity_m_s=tuple(velocity) if velocity else None, wind_m_s=self.wind)
+            transitions = self.detector.update(ev)
+        for kind, event in transitions:
+            self._report(kind, event, t_wall_ns)
+        for sink in self.sinks:
+            sink.summary({"t_wall_ns": t_wall_ns, "frame": frame, **summary,
+                          "rate_g_s": self.rate.rate_g_s if self.rate else None,
+                          "leak": self.detector.current is not None})
+        if transitions and any(k != "update" for k, _ in transitions):
+            self.push_status()
+
+    def on_health(self, snapshot: Any) -> None:
+        """One health snapshot (health reporter thread)."""
+        words = health_words(snapshot)
+        with self._lock:
+            self._health = words
+        for sink in self.sinks:
+            sink.status({"health": words, "t_wall_ns": int(snapshot.t_wall_ns),
+                         "leak": self.detector.current is not None,
+                         "counters": dict(snapshot.counters)})
+        self.push_status(int(snapshot.t_wall_ns))
+
+    def close(self) -> None:
+        """End an ongoing event at shutdown (reason ``appliance stopped``), at the last frame."""
+        with self._lock:
+            t_wall_ns, frame = self._t_wall_ns, self._frame
+            event = self.detector.close(t_wall_ns / 1e9, frame)
+        if event is not None:
+            self._report("end", event, t_wall_ns)
+
+    # ------------------------------------------------------------------ outputs
+
+    def _report(self, kind: str, event: LeakEvent, t_wall_ns: int) -> None:
+        d = {"t_wall_ns": t_wall_ns, **event.to_dict()}
+        if kind != "update":
+            log.warning("leak event %d %s: %s", event.id, kind,
+                        {k: v for k, v in d.items() if v is not None})
+        if self.on_event is not None:
+            self.on_event(kind, d)
+        for sink in self.sinks:
+            sink.event(kind, d)
+
+    def status(self, t_wall_ns: int | None = None) -> OperatorStatus:
+        """The operator's status now."""
+        with self._lock:
+            cur = self.detector.current
+            events = [e.to_dict() for e in reversed(self.detector.finished[-9:])]
+            if cur is not None:
+                events.insert(0, cur.to_dict())
+            r = self.rate
+            return OperatorStatus(
+                t_capture_ns=t_wall_ns or self._t_wall_ns,
+                leak=None if cur is None else cur.to_dict(),
+                rate_kg_h=None if r is None or r.rate_kg_h is None else r.rate_kg_h,
+                rate_uncertainty_kg_h=(None if r is None or r.uncertainty_g_s is None
+                                       else r.uncertainty_g_s * 3.6),
+                true_rate_kg_h=(None if self.true_rate_g_s is None
+                                else self.true_rate_g_s * 3.6),
+                wind_m_s=self.wind, health=list(self._health), events=events)
+
+    def push_status(self, t_wall_ns: int | None = None) -> None:
+        if self.live is not None:
+            self.live.push(self.status(t_wall_ns))

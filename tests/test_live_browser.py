@@ -1,0 +1,116 @@
+"""The operator's live view in a real browser: Debian's chromium driven by playwright.
+
+Starts ``ogiflow run`` (simulated devices, small scene, ``live.mode: serve`` on free
+loopback ports), opens the web viewer in headless chromium (playwright's
+``executable_path``: no browser download), waits until the recording is connected and
+drawn, and checks the screenshot: the operator tab's panels are there (titles read back
+with tesseract OCR: the viewer draws everything on a canvas, so there is no DOM text) and
+the IR picture is not blank. Needs the Debian packages ``chromium`` and ``tesseract-ocr``
+and playwright from PyPI (``tools/install.sh --dev``); missing ones fail the test.
+
+``OGIFLOW_SCREENSHOT=PATH`` also writes the final screenshot there (the README's picture).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+        "--ignore-gpu-blocklist"]
+TITLES = ("gas camera", "status", "emission rate", "leak events")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def ocr(png: Path) -> str:
+    """Text of a screenshot (tesseract)."""
+    out = subprocess.run(["tesseract", str(png), "-"], capture_output=True, text=True,
+                         timeout=60, check=True)
+    return out.stdout
+
+
+def latency_s(text: str) -> float | None:
+    """The viewer's own latency indicator ("12.3 s latency"), when it shows one."""
+    m = re.search(r"(\d+(?:\.\d+)?)\s*(m?s)\s+latency", text)
+    if m is None:
+        return None
+    return float(m.group(1)) / (1000.0 if m.group(2) == "ms" else 1.0)
+
+
+def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
+    from playwright.sync_api import sync_playwright
+
+    assert Path(CHROMIUM).exists(), "install the Debian package chromium (tools/install.sh --dev)"
+    assert shutil.which("tesseract"), "install the Debian package tesseract-ocr"
+    web, grpc = _free_port(), _free_port()
+    cmd = [sys.executable, "-m", "appliance", "run", "--duration", "300",
+           "--record-dir", str(tmp_path / "rec"), "--live", "serve",
+           "--set", f"live.web_port={web}", "--set", f"live.grpc_port={grpc}",
+           "--set", "simulation.frames=24", "--set", "simulation.voxel_m=0.12",
+           "--set", f"simulation.cache_dir={tmp_path / 'cache'}", "--log-level", "WARNING"]
+    log_file = (tmp_path / "run.log").open("w")
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log_file,
+                            start_new_session=True)
+    url = (f"http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy")
+    shot = tmp_path / "live.png"
+    text = ""
+    try:
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            page = browser.new_page(viewport={"width": 1400, "height": 900})
+            deadline = time.monotonic() + 180  # scene render + viewer start
+            while True:
+                try:
+                    page.goto(url, timeout=10_000)
+                    break
+                except Exception:
+                    if time.monotonic() > deadline or proc.poll() is not None:
+                        raise
+                    time.sleep(1.0)
+            deadline = time.monotonic() + 180
+            drawn = False
+            while time.monotonic() < deadline and proc.poll() is None:
+                time.sleep(5.0)
+                page.screenshot(path=str(shot))
+                text = ocr(shot).lower()
+                img = np.asarray(_read_png(shot), np.float32)
+                ir = img[100:650, 20:780]  # the IR picture's panel
+                status = "no leak" in text or re.search(r"leak\s*-\s*for", text) is not None
+                drawn = all(t in text for t in TITLES) and status and float(ir.std()) > 8.0
+                if drawn:
+                    break
+            browser.close()
+        if os.environ.get("OGIFLOW_SCREENSHOT"):
+            shutil.copy(shot, os.environ["OGIFLOW_SCREENSHOT"])
+        assert drawn, f"operator view not drawn within the deadline; OCR text: {text[:600]!r}"
+        print(f"viewer latency indicator: {latency_s(text)} s")
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=60)
+        log_file.close()
+    assert code == 0, (tmp_path / "run.log").read_text()[-2000:]
+
+
+def _read_png(path: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None, f"could not read {path}"
+    return img
