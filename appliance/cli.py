@@ -33,6 +33,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.bench",
     "appliance.commands.eval_sceneflow",
     "appliance.commands.replay",
+    "appliance.commands.reprocess",
 )
 
 EXIT_OK = 0

@@ -54,7 +54,7 @@ def cut_segments(times_ns: Sequence[int], segment_s: float | None) -> list[Segme
     if not segment_s > 0:
         raise ValueError(f"--segment-s must be > 0, got {segment_s}")
     t = np.asarray(times_ns, dtype=np.int64)
-    bins = ((t - t[0]) // int(round(segment_s * 1e9))).astype(np.int64)
+    bins = ((t - t[0]) // round(segment_s * 1e9)).astype(np.int64)
     starts = [0, *(np.flatnonzero(np.diff(bins)) + 1).tolist()]
     ends = [*starts[1:], n]
     return [Segment(i, a, b) for i, (a, b) in enumerate(zip(starts, ends, strict=True))]
