@@ -49,7 +49,7 @@ def write_recording(path: Path, n_frames: int, *, seed: int = 0,
     meta = file_metadata(cfg, None)
     meta.update(processing_metadata(GEOMETRY, PARAMS))
     meta["recording"] = {"host": host or f"test-appliance-{seed}"}
-    sink = McapSink(path, meta)
+    sink = McapSink(path, meta, chunk_size=64 * 1024)  # small files, several chunks
     rng = np.random.default_rng(seed)
     wall0 = 1_700_000_000_000_000_000 + seed * 10**12
     mono0 = 5_000_000_000

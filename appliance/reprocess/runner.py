@@ -98,7 +98,10 @@ class Runner:
     def _init(self) -> Any:
         ray = import_ray()
         if not ray.is_initialized():
+            # A local Ray stays on loopback; a cluster has its own addresses.
+            local = {"_node_ip_address": "127.0.0.1"} if self.address is None else {}
             ray.init(address=self.address, num_cpus=self.num_cpus, runtime_env=_runtime_env(),
+                     **local,
                      include_dashboard=False, log_to_driver=False,
                      logging_level="WARNING", configure_logging=True)
             self._started_ray = True

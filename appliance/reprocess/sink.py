@@ -30,14 +30,17 @@ class McapSink:
         Final file name; the file is written as ``.<name>.part`` beside it until closed.
     metadata : mapping
         Metadata records ``{name: {key: value}}`` written first.
+    chunk_size : int
+        Uncompressed chunk size in bytes (the appliance's recorder uses 1 MiB too).
     """
 
-    def __init__(self, path: Path, metadata: Mapping[str, Mapping[str, str]]) -> None:
+    def __init__(self, path: Path, metadata: Mapping[str, Mapping[str, str]], *,
+                 chunk_size: int = 1024 * 1024) -> None:
         self.path = Path(path)
         self.part = self.path.with_name(f".{self.path.name}.{os.getpid()}.part")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = open(self.part, "wb")  # closed in close() or abort()
-        self._writer = Writer(self._stream, chunk_size=1024 * 1024,
+        self._writer = Writer(self._stream, chunk_size=chunk_size,
                               compression=CompressionType.ZSTD)
         self._writer.start(profile="", library=f"ogiflow {__version__}")
         for name, data in metadata.items():

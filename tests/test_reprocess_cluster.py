@@ -1,0 +1,202 @@
+"""``ogiflow reprocess`` on a two-node Ray cluster started inside the test (loopback only).
+
+Ray comes with the ``dev`` extra (``tools/install.sh --dev``). Every cluster process is
+stopped at the end of the module.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+from mcap.reader import make_reader
+
+from appliance import cli
+from appliance.recording.reader import iter_json
+from tests.recording_helpers import cut_recording, write_recording
+
+ray = pytest.importorskip("ray", reason="install the dev extra: tools/install.sh --dev")
+from ray.cluster_utils import Cluster  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Every node and driver of the test cluster on 127.0.0.1: with this switch off Ray takes
+#: the loopback address as the node address (instead of the default route's interface).
+LOOPBACK = {"RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0"}
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[Cluster]:
+    """Head + one worker node, one CPU each, on loopback; workers import this checkout."""
+    saved = {k: os.environ.get(k) for k in (*LOOPBACK, "PYTHONPATH")}
+    os.environ.update({**LOOPBACK, "PYTHONPATH": str(ROOT)})
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    try:
+        c.add_node(num_cpus=1)
+        c.wait_for_nodes()
+        yield c
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+        c.shutdown()
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    d = tmp_path_factory.mktemp("fleet")
+    return [write_recording(d / "site-a" / "a.mcap", 90, seed=1),
+            write_recording(d / "site-b" / "b.mcap", 75, seed=2)]
+
+
+def _content(path: Path) -> tuple[dict[str, list], dict[str, dict[str, str]]]:
+    """Messages per topic (time-sorted) and metadata: what two equal results share."""
+    topics: dict[str, list] = defaultdict(list)
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for _s, channel, m in reader.iter_messages(log_time_order=False):
+            topics[channel.topic].append((m.log_time, m.publish_time, m.data))
+        meta = {r.name: dict(r.metadata) for r in reader.iter_metadata()}
+    return {k: sorted(v) for k, v in topics.items()}, meta
+
+
+def _summary_pairs(path: Path) -> list[int]:
+    _r, msgs = iter_json(path, ["/sceneflow/summary"])
+    return [m["pair_index"] for _t, m in msgs]
+
+
+def test_results_equal_serial_replay_with_the_same_segments(
+        cluster: Cluster, inputs: list[Path], tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    code = cli.main(["reprocess", str(inputs[0].parent.parent), "--out", str(out),
+                     "--address", cluster.address, "--segment-s", "1"])
+    assert code == 0
+    for src, host in zip(inputs, ("test-appliance-1", "test-appliance-2"), strict=True):
+        result = out / host / src.name
+        serial = tmp_path / f"serial-{src.name}"
+        assert cli.main(["replay", str(src), "--fast", "--segment-s", "1",
+                         "--out", str(serial)]) == 0
+        got, want = _content(result), _content(serial)
+        assert got[1] == want[1]  # metadata: source, parameters, segmenting, geometry
+        assert got[0].keys() == want[0].keys()
+        for topic in want[0]:
+            assert got[0][topic] == want[0][topic], topic
+    table = pq.read_table(out / "summaries.parquet")
+    assert table.num_rows == 88 + 73
+    assert set(table.column("appliance_id").to_pylist()) == {"test-appliance-1",
+                                                             "test-appliance-2"}
+    assert table.column("time").null_count == table.column("vx_m_s").null_count == 0
+
+
+def test_a_sweep_writes_one_output_per_combination(cluster: Cluster, inputs: list[Path],
+                                                   tmp_path: Path) -> None:
+    out = tmp_path / "sweep"
+    assert cli.main(["reprocess", str(inputs[1]), "--out", str(out), "--address",
+                     cluster.address, "--segment-s", "5", "--param", "alpha=0.05,0.2",
+                     "--fields-every", "100"]) == 0
+    outputs = sorted(p.name for p in (out / "test-appliance-2").glob("*.mcap"))
+    assert outputs == ["b__alpha=0.05.mcap", "b__alpha=0.2.mcap"]
+    table = pq.read_table(out / "summaries.parquet").drop_columns(["time"])
+    assert sorted(set(table.column("alpha").to_pylist())) == [0.05, 0.2]
+    assert table.num_rows == 2 * 73
+    speeds = {a: [r["speed_m_s"] for r in table.to_pylist() if r["alpha"] == a]
+              for a in (0.05, 0.2)}
+    assert speeds[0.05] != speeds[0.2]
+
+
+def test_a_killed_worker_is_retried_and_every_triple_done_once(
+        cluster: Cluster, tmp_path: Path) -> None:
+    src = write_recording(tmp_path / "in" / "long.mcap", 300, seed=3)
+    out = tmp_path / "out"
+    killed: list[int] = []
+
+    def kill_first_running_task() -> None:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not killed:
+            for log in out.glob(".segments/*/seg-*.attempts"):
+                lines = log.read_text().split()
+                if len(lines) >= 3 and not log.with_suffix(".mcap").exists():
+                    pid = int(lines[1])
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                    return
+            time.sleep(0.01)
+
+    killer = threading.Thread(target=kill_first_running_task, daemon=True)
+    killer.start()
+    code = cli.main(["reprocess", str(src), "--out", str(out), "--address", cluster.address,
+                     "--segment-s", "3", "--fields-every", "1000"])
+    killer.join(timeout=5)
+    assert killed and code == 0
+    pairs = _summary_pairs(out / "test-appliance-3" / "long.mcap")
+    assert sorted(pairs) == list(range(1, 299))  # each triple exactly once
+    attempts = [len(p.read_text().splitlines()) for p in out.glob(".segments/*/*.attempts")]
+    assert max(attempts) == 2 and sum(attempts) == len(attempts) + 1
+
+
+def test_interrupt_then_rerun_does_only_the_missing_segments(
+        cluster: Cluster, tmp_path: Path) -> None:
+    src = write_recording(tmp_path / "in" / "long.mcap", 300, seed=4)
+    out = tmp_path / "out"
+    args = ["reprocess", str(src), "--out", str(out), "--address", cluster.address,
+            "--segment-s", "1", "--fields-every", "1000"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    manifest = out / "manifest.jsonl"
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if manifest.is_file() and manifest.read_text().count('"kind": "segment"') >= 2:
+                break
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGINT)
+        text, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == cli.EXIT_INTERRUPTED, text
+    done_before = manifest.read_text().count('"kind": "segment"')
+    assert 2 <= done_before < 10  # 300 frames at 30 Hz: 10 one-second segments
+    assert not (out / "test-appliance-4" / "long.mcap").exists()
+
+    assert cli.main(args) == 0
+    entries = manifest.read_text().count('"kind": "segment"')
+    assert entries == 10  # the finished ones were not run again
+    attempts = {p.name: p.read_text().split()[0::3] for p in out.glob(".segments/*/*.attempts")}
+    runs = {r for v in attempts.values() for r in v}
+    assert len(runs) == 2  # two runs; no segment attempted by both
+    assert all(len(set(v)) == 1 for v in attempts.values())
+    assert sorted(_summary_pairs(out / "test-appliance-4" / "long.mcap")) == list(range(1, 299))
+
+
+def test_a_cut_and_a_corrupt_input_do_not_stop_the_others(
+        cluster: Cluster, inputs: list[Path], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    d = tmp_path / "in"
+    d.mkdir()
+    cut = cut_recording(inputs[0], d / "cut.mcap.active", 0.5)  # left by kill -9
+    (d / "corrupt.mcap").write_bytes(b"not an mcap file at all")
+    out = tmp_path / "out"
+    code = cli.main(["reprocess", str(d), str(inputs[1]), "--out", str(out),
+                     "--address", cluster.address, "--segment-s", "1", "--fields-every", "50"])
+    err = capsys.readouterr().err
+    assert code == cli.EXIT_FAILURE  # the corrupt input is an error, reported
+    assert "corrupt.mcap" in err and "not an MCAP file" in err
+    assert f"{cut} ends early" in err
+    cut_pairs = _summary_pairs(out / "test-appliance-1" / "cut.mcap")
+    assert 10 < len(cut_pairs) < 88 and sorted(cut_pairs) == list(range(1, len(cut_pairs) + 1))
+    assert len(_summary_pairs(out / "test-appliance-2" / "b.mcap")) == 73
