@@ -115,9 +115,9 @@ class Runner:
         try:
             self._run(ray, pending)
         except KeyboardInterrupt:
+            # No ray.cancel: the tasks of this driver end with it (ray.shutdown below, or
+            # the job's end on a cluster); cancelling while results arrive crashes Ray 2.60.
             self.summary.interrupted = True
-            for ref in pending:
-                ray.cancel(ref, force=True)
         finally:
             self.summary.wall_s = time.monotonic() - t0
             self.summary.retries = self._retries()
