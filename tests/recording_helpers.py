@@ -10,6 +10,11 @@ processing), so replay and reprocess read it like a real recording.
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -83,3 +88,28 @@ def cut_recording(src: Path, dst: Path, keep_fraction: float) -> Path:
     dst.write_bytes(data[: int(len(data) * keep_fraction)])
     os.sync()
     return dst
+
+
+def interrupt_cli(args: Sequence[str], ready: Callable[[], bool], *, after_s: float = 0.0,
+                  timeout_s: float = 120.0) -> tuple[int, str]:
+    """Run ``python -m appliance ARGS`` from this checkout, Ctrl-C it once ``ready()``.
+
+    Waits at most ``timeout_s`` for ``ready``, then ``after_s`` more; returns the exit code
+    and the combined output. The process is killed if it does not end.
+    """
+    root = Path(__file__).resolve().parent.parent
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    proc = subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=root, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline and not ready():
+            time.sleep(0.02)
+        time.sleep(after_s)
+        proc.send_signal(signal.SIGINT)
+        text, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, text

@@ -9,8 +9,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from collections import defaultdict
@@ -19,14 +17,13 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+import ray  # the dev extra installs it (tools/install.sh --dev)
 from mcap.reader import make_reader
+from ray.cluster_utils import Cluster
 
 from appliance import cli
 from appliance.recording.reader import iter_json
-from tests.recording_helpers import cut_recording, write_recording
-
-ray = pytest.importorskip("ray", reason="install the dev extra: tools/install.sh --dev")
-from ray.cluster_utils import Cluster  # noqa: E402
+from tests.recording_helpers import cut_recording, interrupt_cli, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Every node and driver of the test cluster on 127.0.0.1: with this switch off Ray takes
@@ -101,22 +98,6 @@ def test_results_equal_serial_replay_with_the_same_segments(
     assert table.column("time").null_count == table.column("vx_m_s").null_count == 0
 
 
-def test_a_sweep_writes_one_output_per_combination(cluster: Cluster, inputs: list[Path],
-                                                   tmp_path: Path) -> None:
-    out = tmp_path / "sweep"
-    assert cli.main(["reprocess", str(inputs[1]), "--out", str(out), "--address",
-                     cluster.address, "--segment-s", "5", "--param", "alpha=0.05,0.2",
-                     "--fields-every", "100"]) == 0
-    outputs = sorted(p.name for p in (out / "test-appliance-2").glob("*.mcap"))
-    assert outputs == ["b__alpha=0.05.mcap", "b__alpha=0.2.mcap"]
-    table = pq.read_table(out / "summaries.parquet").drop_columns(["time"])
-    assert sorted(set(table.column("alpha").to_pylist())) == [0.05, 0.2]
-    assert table.num_rows == 2 * 73
-    speeds = {a: [r["speed_m_s"] for r in table.to_pylist() if r["alpha"] == a]
-              for a in (0.05, 0.2)}
-    assert speeds[0.05] != speeds[0.2]
-
-
 def test_a_killed_worker_is_retried_and_every_triple_done_once(
         cluster: Cluster, tmp_path: Path) -> None:
     src = write_recording(tmp_path / "in" / "long.mcap", 300, seed=3)
@@ -153,23 +134,10 @@ def test_interrupt_then_rerun_does_only_the_missing_segments(
     out = tmp_path / "out"
     args = ["reprocess", str(src), "--out", str(out), "--address", cluster.address,
             "--segment-s", "1", "--fields-every", "1000"]
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     manifest = out / "manifest.jsonl"
-    try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if manifest.is_file() and manifest.read_text().count('"kind": "segment"') >= 2:
-                break
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGINT)
-        text, _ = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == cli.EXIT_INTERRUPTED, text
+    code, text = interrupt_cli(args, lambda: manifest.is_file() and manifest.read_text().count(
+        '"kind": "segment"') >= 2)
+    assert code == cli.EXIT_INTERRUPTED, text
     done_before = manifest.read_text().count('"kind": "segment"')
     assert 2 <= done_before < 10  # 300 frames at 30 Hz: 10 one-second segments
     assert not (out / "test-appliance-4" / "long.mcap").exists()
@@ -187,7 +155,7 @@ def test_interrupt_then_rerun_does_only_the_missing_segments(
     assert sorted(_summary_pairs(out / "test-appliance-4" / "long.mcap")) == list(range(1, 299))
 
 
-def test_a_cut_and_a_corrupt_input_do_not_stop_the_others(
+def test_a_cut_and_a_corrupt_input_do_not_stop_the_others_in_a_sweep(
         cluster: Cluster, inputs: list[Path], tmp_path: Path,
         capsys: pytest.CaptureFixture[str]) -> None:
     d = tmp_path / "in"
@@ -196,11 +164,20 @@ def test_a_cut_and_a_corrupt_input_do_not_stop_the_others(
     (d / "corrupt.mcap").write_bytes(b"not an mcap file at all")
     out = tmp_path / "out"
     code = cli.main(["reprocess", str(d), str(inputs[1]), "--out", str(out),
-                     "--address", cluster.address, "--segment-s", "1", "--fields-every", "50"])
+                     "--address", cluster.address, "--segment-s", "1", "--fields-every", "50",
+                     "--param", "alpha=0.05,0.2"])
     err = capsys.readouterr().err
     assert code == cli.EXIT_FAILURE  # the corrupt input is an error, reported
     assert "corrupt.mcap" in err and "not an MCAP file" in err
     assert f"{cut} ends early" in err
-    cut_pairs = _summary_pairs(out / "test-appliance-1" / "cut.mcap")
-    assert 10 < len(cut_pairs) < 88 and sorted(cut_pairs) == list(range(1, len(cut_pairs) + 1))
-    assert len(_summary_pairs(out / "test-appliance-2" / "b.mcap")) == 73
+    for alpha in ("0.05", "0.2"):  # one output per combination
+        cut_pairs = _summary_pairs(out / "test-appliance-1" / f"cut__alpha={alpha}.mcap")
+        assert 10 < len(cut_pairs) < 88
+        assert sorted(cut_pairs) == list(range(1, len(cut_pairs) + 1))
+        assert len(_summary_pairs(out / "test-appliance-2" / f"b__alpha={alpha}.mcap")) == 73
+    table = pq.read_table(out / "summaries.parquet").drop_columns(["time"]).to_pylist()
+    assert sorted({r["alpha"] for r in table}) == [0.05, 0.2]
+    assert len(table) == 2 * (73 + len(cut_pairs))
+    speeds = {a: [r["speed_m_s"] for r in table if r["alpha"] == a and r["input"].endswith(
+        "b.mcap")] for a in (0.05, 0.2)}
+    assert len(speeds[0.05]) == 73 and speeds[0.05] != speeds[0.2]

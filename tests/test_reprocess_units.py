@@ -2,11 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
-import sys
-import time
 from collections import Counter
 from pathlib import Path
 
@@ -21,9 +16,7 @@ from appliance import cli
 from appliance.recording.reader import LogReader
 from appliance.reprocess.jobs import expand_inputs, parameter_grid, split_values
 from appliance.reprocess.segments import cut_segments
-from tests.recording_helpers import cut_recording, write_recording
-
-ROOT = Path(__file__).resolve().parent.parent
+from tests.recording_helpers import cut_recording, interrupt_cli, write_recording
 
 
 @settings(max_examples=60, deadline=None)
@@ -132,21 +125,10 @@ def test_replay_of_a_recording_cut_by_kill_9_warns_and_keeps_everything_before(
 def test_replay_ctrl_c_leaves_a_valid_file_with_what_was_processed(tmp_path: Path) -> None:
     src = write_recording(tmp_path / "long.mcap", 240)  # 8 s at the recorded pace
     out = tmp_path / "out.mcap"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "appliance", "replay", str(src), "--out",
-                             str(out)], cwd=ROOT, env=env, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline and not list(tmp_path.glob(".out.mcap.*.part")):
-            time.sleep(0.05)
-        time.sleep(3.0)  # paced: about 90 frames in
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    assert proc.returncode == cli.EXIT_INTERRUPTED, err
+    code, err = interrupt_cli(["replay", str(src), "--out", str(out)],
+                              lambda: bool(list(tmp_path.glob(".out.mcap.*.part"))),
+                              after_s=3.0)  # paced: about 90 frames in
+    assert code == cli.EXIT_INTERRUPTED, err
     assert "interrupted" in err
     with open(out, "rb") as f:  # finished: summary and index present
         summary = make_reader(f).get_summary()

@@ -18,6 +18,7 @@ from typing import Any
 from mcap.writer import CompressionType, Writer
 
 from appliance import __version__
+from appliance.recording.recorder import ChannelTable
 from appliance.recording.schemas import WIND_SAMPLE, MessageSchema, encode_json
 
 
@@ -45,22 +46,13 @@ class McapSink:
         self._writer.start(profile="", library=f"ogiflow {__version__}")
         for name, data in metadata.items():
             self._writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
-        self._schemas: dict[tuple[str, str, bytes], int] = {}
-        self._channels: dict[tuple[str, int], int] = {}
+        self._table = ChannelTable(self._writer)
         self.messages = 0
 
     def record(self, topic: str, schema: MessageSchema, payload: bytes, log_time_ns: int,
                publish_time_ns: int | None = None) -> bool:
         """Write one message now (registers its schema and channel on first use)."""
-        skey = (schema.name, schema.encoding, schema.data)
-        sid = self._schemas.get(skey)
-        if sid is None:
-            sid = self._writer.register_schema(schema.name, schema.encoding, schema.data)
-            self._schemas[skey] = sid
-        cid = self._channels.get((topic, sid))
-        if cid is None:
-            cid = self._writer.register_channel(topic, schema.message_encoding, sid)
-            self._channels[(topic, sid)] = cid
+        cid = self._table.channel_for(topic, schema)
         self._writer.add_message(cid, log_time=int(log_time_ns), data=payload,
                                  publish_time=int(publish_time_ns if publish_time_ns is not None
                                                   else log_time_ns))
