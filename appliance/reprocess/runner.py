@@ -92,6 +92,7 @@ class Runner:
         self.run_id = uuid.uuid4().hex[:12]
         self.summary = RunSummary(inputs=len({j.input for j in jobs}), jobs=len(jobs))
         self._started_ray = False
+        self._outputs: set[Path] = set()
 
     # ------------------------------------------------------------------ ray
 
@@ -205,6 +206,10 @@ class Runner:
             return
         if all(self.manifest.segment_done(job.key, i) for i in range(n)):
             out = job.output(self.out_dir, plan["appliance_id"])
+            taken = {Path(e["output"]) for k, e in self.manifest.merged.items() if k != job.key}
+            if out in taken or out in self._outputs:  # same name from another folder
+                out = out.with_name(f"{out.stem}-{job.key[:8]}.mcap")
+            self._outputs.add(out)
             ref = merge_r.remote(job, n, self.manifest.segment_dir(job.key), out)
             pending[ref] = ("merge", job, None)
 

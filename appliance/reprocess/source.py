@@ -142,7 +142,8 @@ class Recording:
         out = {"replay": {"source": str(self.path.resolve()),
                           "parameters": parameters_json(params),
                           "segment_s": "" if segment_s is None else repr(float(segment_s))}}
-        for name in ("config", "calibration", "geometry"):
+        # The source's own records: which appliance recorded it, with what setup.
+        for name in ("recording", "config", "calibration", "geometry"):
             if name in self.meta:
                 out[name] = dict(self.meta[name])
         out["processing"] = {"json": parameters_json(params)}
