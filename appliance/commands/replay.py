@@ -54,7 +54,7 @@ def register(root: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from appliance.cli import EXIT_INTERRUPTED
     from appliance.config import live_overrides, load_config
-    from appliance.reprocess.segments import cut_segments, run_segments
+    from appliance.reprocess.segments import cut_segments, process_into
     from appliance.reprocess.sink import McapSink
     from appliance.reprocess.source import (
         PairStream,
@@ -62,10 +62,7 @@ def run(args: argparse.Namespace) -> int:
         load_geometry,
         load_parameters,
         parse_override,
-        read_wind,
-        wind_history,
     )
-    from appliance.runtime.publishing import ResultPublisher
     from appliance.runtime.workers import _single_threaded
 
     src: Path = args.file
@@ -89,36 +86,32 @@ def run(args: argparse.Namespace) -> int:
         from appliance.live.view import LiveView
 
         live = LiveView(load_config(None, live_overrides(args.live)).live).start()
-    wind = read_wind(src)
-    sink.record_wind(wind, rec.wall_offset_ns)
-    publisher = ResultPublisher(sink, live, rec.wall_ns, args.fields_every)
-    history = wind_history(rec, wind)
-    if history is not None:
-        publisher.wind_at = history.at
 
     def progress(r: Any) -> None:
+        nonlocal done
+        done = r.triples
         if sys.stderr.isatty():
             sys.stderr.write(f"\rreplay: {r.triples + r.failed} triples, {r.triples} processed")
             sys.stderr.flush()
         elif (r.triples + r.failed) % 100 == 0:
             print(f"replay: {r.triples} triples processed", file=sys.stderr)
 
-    interrupted = False
     report = None
+    done = 0
     try:
-        report = run_segments(rec, geometry, params, _open_ended(segments), publisher,
-                              fields_every=args.fields_every, pace=not args.fast,
-                              on_triple=progress)
+        report, _ = process_into(sink, rec, geometry, params, _open_ended(segments),
+                                 fields_every=args.fields_every, copy_wind=True,
+                                 live=live, pace=not args.fast, on_triple=progress)
     except KeyboardInterrupt:
-        interrupted = True
+        pass
     finally:
         if sys.stderr.isatty():
             sys.stderr.write("\n")
         if live is not None:
             live.close()
         sink.close()  # also on Ctrl-C: a valid file with everything processed so far
-    if interrupted or report is None:
-        print(f"interrupted: {publisher.published} triples processed so far are in {out}",
+    if report is None:
+        print(f"interrupted: {done} triples processed so far are in {out}",
               file=sys.stderr)
         return EXIT_INTERRUPTED
     for line in report.errors:

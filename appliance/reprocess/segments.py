@@ -157,6 +157,42 @@ def run_segments(
     return report
 
 
+def process_into(
+    sink: Any,
+    rec: Recording,
+    geometry: StereoGeometry,
+    params: ChainParameters,
+    segments: Sequence[Segment],
+    *,
+    fields_every: int = 1,
+    copy_wind: bool = False,
+    live: Any = None,
+    pace: bool = False,
+    on_triple: Callable[[SegmentReport], None] | None = None,
+) -> tuple[SegmentReport, Any]:
+    """Run ``segments`` of ``rec`` and publish into ``sink`` as the appliance would.
+
+    Builds the :class:`~appliance.runtime.publishing.ResultPublisher` with the recording's
+    wind in the camera frame (all of the file's samples, so every segment interpolates the
+    same wind) and calls :func:`run_segments`. ``copy_wind`` also copies the raw wind
+    samples into ``sink`` first (a whole-file replay; reprocess copies them once, when
+    merging). Returns the report and the publisher (its ``truth_log`` holds every summary).
+    """
+    from appliance.reprocess.source import read_wind, wind_history
+    from appliance.runtime.publishing import ResultPublisher
+
+    wind = read_wind(rec.path)
+    if copy_wind:
+        sink.record_wind(wind, rec.wall_offset_ns)
+    publisher = ResultPublisher(sink, live, rec.wall_ns, fields_every)
+    history = wind_history(rec, wind)
+    if history is not None:
+        publisher.wind_at = history.at
+    report = run_segments(rec, geometry, params, segments, publisher,
+                          fields_every=fields_every, pace=pace, on_triple=on_triple)
+    return report, publisher
+
+
 class _Owner:
     """Which pairs and triples a list of segments covers."""
 

@@ -50,16 +50,9 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     retries are counted, and how a test finds the worker to kill).
     """
     from appliance.recording.tables import SUMMARY_COLUMNS, summary_row, write_parquet
-    from appliance.reprocess.segments import Segment, run_segments
+    from appliance.reprocess.segments import Segment, process_into
     from appliance.reprocess.sink import McapSink
-    from appliance.reprocess.source import (
-        Recording,
-        load_geometry,
-        load_parameters,
-        read_wind,
-        wind_history,
-    )
-    from appliance.runtime.publishing import ResultPublisher
+    from appliance.reprocess.source import Recording, load_geometry, load_parameters
     from appliance.runtime.workers import _single_threaded
 
     _single_threaded()
@@ -72,14 +65,10 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     geometry = load_geometry(rec.meta, job.calibration)
     params = load_parameters(rec.meta, job.overrides)
     sink = McapSink(mcap_path, {})
+    segment = Segment(index, first, stop)
     try:
-        publisher = ResultPublisher(sink, None, rec.wall_ns, job.fields_every)
-        history = wind_history(rec, read_wind(job.input))
-        if history is not None:
-            publisher.wind_at = history.at
-        segment = Segment(index, first, stop)
-        report = run_segments(rec, geometry, params, [segment], publisher,
-                              fields_every=job.fields_every)
+        report, publisher = process_into(sink, rec, geometry, params, [segment],
+                                         fields_every=job.fields_every)
         rows = [summary_row(s) for _t, _truth, s in publisher.truth_log]
     except BaseException:
         sink.abort()
