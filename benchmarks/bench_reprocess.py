@@ -61,8 +61,8 @@ def main() -> None:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("recordings", nargs="*", type=Path)
     ap.add_argument("--recordings-to-make", "--recordings", dest="n", type=int, default=2)
-    ap.add_argument("--duration", type=float, default=30.0, help="s per made recording")
-    ap.add_argument("--segment-s", type=float, default=5.0)
+    ap.add_argument("--duration", type=float, default=45.0, help="s per made recording")
+    ap.add_argument("--segment-s", type=float, default=10.0)
     ap.add_argument("--fields-every", type=int, default=30)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="bench-reprocess-") as tmp:
