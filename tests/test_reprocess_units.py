@@ -62,6 +62,7 @@ def test_inputs_are_files_folders_and_globs(tmp_path: Path) -> None:
     assert expand_inputs([str(tmp_path)], exclude=out.parent) == [a, b]
     assert expand_inputs([str(tmp_path / "*" / "**" / "*.mcap")]) == [a, out]
     assert expand_inputs([str(a), str(a)]) == [a]
+    assert expand_inputs([str(tmp_path / "site*") + "/"], exclude=out.parent) == [a, b]
     with pytest.raises(ValueError, match="no MCAP"):
         expand_inputs([str(tmp_path / "missing")])
 

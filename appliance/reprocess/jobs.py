@@ -36,13 +36,14 @@ def expand_inputs(inputs: Iterable[str], exclude: Path | None = None) -> list[Pa
     found: set[Path] = set()
     skip = exclude.resolve() if exclude is not None else None
     for text in inputs:
-        path = Path(text)
-        if path.is_dir():
-            matches = [p for p in path.rglob("*") if p.name.endswith(RECORDING_SUFFIXES)]
-        elif glob.has_magic(text):
-            matches = [Path(p) for p in glob.glob(text, recursive=True)]
-        else:
-            matches = [path] if path.is_file() else []
+        named = [Path(p) for p in glob.glob(text, recursive=True)] if glob.has_magic(text) \
+            else [Path(text)]
+        matches = []
+        for path in named:
+            if path.is_dir():
+                matches += [p for p in path.rglob("*") if p.name.endswith(RECORDING_SUFFIXES)]
+            else:
+                matches.append(path)
         matches = [p.resolve() for p in matches if p.is_file()]
         matches = [p for p in matches if skip is None or not p.is_relative_to(skip)]
         if not matches:
