@@ -36,6 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.bench",
     "appliance.commands.eval_sceneflow",
     "appliance.commands.replay",
+    "appliance.commands.reprocess",
 )
 
 __all__ = ["EXIT_FAILURE", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "CommandError", "main"]

@@ -2,12 +2,15 @@
 # Install ogiflow into ./.venv on Debian (bookworm or later) with Python >= 3.10.
 #   tools/install.sh          runtime only
 #   tools/install.sh --dev    runtime + test tools + the system packages the tests need
+#   tools/install.sh --cluster  runtime + Ray, for `ogiflow reprocess` (extra `cluster`)
 # System packages come from apt (with sudo when not root); Python packages from PyPI.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 dev=0
+cluster=0
 [ "${1:-}" = "--dev" ] && dev=1
+[ "${1:-}" = "--cluster" ] && cluster=1
 
 apt_packages=(python3-venv python3-dev)
 if [ "$dev" = 1 ]; then
@@ -39,6 +42,8 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip
 if [ "$dev" = 1 ]; then
     .venv/bin/python -m pip install -q -e ".[dev,gige]"
+elif [ "$cluster" = 1 ]; then
+    .venv/bin/python -m pip install -q ".[cluster]"
 else
     .venv/bin/python -m pip install -q .
 fi

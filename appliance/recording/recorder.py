@@ -47,6 +47,7 @@ from appliance.recording.schemas import MessageSchema
 
 __all__ = [
     "FILE_PATTERN",
+    "ChannelTable",
     "Recorder",
     "RecorderStats",
     "closed_files",
@@ -119,6 +120,27 @@ class _Item:
     publish_time_ns: int
 
 
+class ChannelTable:
+    """Schema and channel ids of one MCAP ``Writer``, each registered on first use."""
+
+    def __init__(self, writer: Writer) -> None:
+        self.writer = writer
+        self.schemas: dict[tuple[str, str, bytes], int] = {}
+        self.channels: dict[tuple[str, int], int] = {}
+
+    def channel_for(self, topic: str, schema: MessageSchema) -> int:
+        skey = (schema.name, schema.encoding, schema.data)
+        sid = self.schemas.get(skey)
+        if sid is None:
+            sid = self.writer.register_schema(schema.name, schema.encoding, schema.data)
+            self.schemas[skey] = sid
+        cid = self.channels.get((topic, sid))
+        if cid is None:
+            cid = self.writer.register_channel(topic, schema.message_encoding, sid)
+            self.channels[(topic, sid)] = cid
+        return cid
+
+
 class _OpenFile:
     """One open MCAP file and its per-file registrations."""
 
@@ -129,8 +151,7 @@ class _OpenFile:
         self.writer = Writer(self.stream, chunk_size=rc.chunk_kb * 1024,
                              compression=_COMPRESSION[rc.compression])
         self.writer.start(profile="", library=f"ogiflow {__version__}")
-        self.schemas: dict[tuple[str, str, bytes], int] = {}
-        self.channels: dict[tuple[str, int], int] = {}
+        self.table = ChannelTable(self.writer)
         self.opened_mono = time.monotonic()
         self.last_fsync = self.opened_mono
         self.messages = 0
@@ -147,16 +168,7 @@ class _OpenFile:
             self.writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
 
     def channel_for(self, topic: str, schema: MessageSchema) -> int:
-        skey = (schema.name, schema.encoding, schema.data)
-        sid = self.schemas.get(skey)
-        if sid is None:
-            sid = self.writer.register_schema(schema.name, schema.encoding, schema.data)
-            self.schemas[skey] = sid
-        cid = self.channels.get((topic, sid))
-        if cid is None:
-            cid = self.writer.register_channel(topic, schema.message_encoding, sid)
-            self.channels[(topic, sid)] = cid
-        return cid
+        return self.table.channel_for(topic, schema)
 
     def size(self) -> int:
         return self.stream.tell()

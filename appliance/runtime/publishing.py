@@ -78,8 +78,13 @@ class ResultPublisher:
 
     # ------------------------------------------------------------------ results
 
-    def publish(self, res: WorkerResult) -> dict[str, Any] | None:
-        """Record (and show) one result; returns its summary, or None for a failed one."""
+    def publish(self, res: WorkerResult, *, fields: bool | None = None) -> dict[str, Any] | None:
+        """Record (and show) one result; returns its summary, or None for a failed one.
+
+        ``fields`` says whether to record the full fields; None: every ``fields_every``-th
+        published result (live), a bool: the caller decides (replay chooses by triple index,
+        so that segmenting does not change which triples carry fields).
+        """
         if res.error is not None:
             self.errors += 1
             return None
@@ -103,7 +108,8 @@ class ResultPublisher:
         with self._lock:
             self.published += 1
             self.truth_log.append((t1, truth, summary))
-            record_fields = self.published % self.fields_every == 0
+            record_fields = (self.published % self.fields_every == 0 if fields is None
+                             else fields)
         if self.recorder is not None and record_fields:
             self._record_fields(res, t1)
         if self.live is not None:

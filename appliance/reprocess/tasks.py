@@ -1,0 +1,100 @@
+"""Bodies of the reprocessing tasks; plain functions (Ray runs them, tests may call them).
+
+Each returns a small dict (picklable, JSON-able) and writes its files atomically, so a
+task killed at any point leaves nothing that looks finished and can simply run again.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from pathlib import Path
+from typing import Any
+
+from appliance.reprocess.jobs import Job
+
+
+def plan_task(job: Job) -> dict[str, Any]:
+    """Cut ``job.input`` into segments: pairs it by the appliance's rules, once.
+
+    Returns ``{"segments": [[first, stop], ...], "pairs", "truncated", "appliance_id",
+    "output_meta"}`` or ``{"error": text}`` for an unreadable input.
+    """
+    from appliance.reprocess.segments import cut_segments
+    from appliance.reprocess.source import PairStream, Recording
+    from drivers.camera.base import CameraError
+
+    try:
+        rec = Recording.open(job.input)
+        pairs = PairStream(rec)
+        times = [p.time_ns for _i, p in pairs]
+    except (ValueError, OSError, CameraError) as exc:
+        return {"error": f"{job.input}: {exc}"}
+    segments = cut_segments(times, job.segment_s)
+    return {"segments": [[s.first, s.stop] for s in segments], "pairs": len(times),
+            "truncated": pairs.truncated, "appliance_id": rec.appliance_id}
+
+
+def segment_paths(seg_dir: Path, index: int) -> tuple[Path, Path, Path]:
+    """The segment's result MCAP, its summary rows (Parquet) and its attempts log."""
+    stem = seg_dir / f"seg-{index:05d}"
+    return stem.with_suffix(".mcap"), stem.with_suffix(".parquet"), stem.with_suffix(".attempts")
+
+
+def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_dir: Path,
+                 run_id: str) -> dict[str, Any]:
+    """Process one segment of one job; write its results and summary rows.
+
+    Every attempt appends ``run_id pid host`` to the segment's attempts log first (how
+    retries are counted, and how a test finds the worker to kill).
+    """
+    from appliance.recording.tables import SUMMARY_COLUMNS, summary_row, write_parquet
+    from appliance.reprocess.segments import Segment, process_into
+    from appliance.reprocess.sink import McapSink
+    from appliance.reprocess.source import Recording, load_geometry, load_parameters
+    from appliance.runtime.workers import _single_threaded
+
+    _single_threaded()
+    seg_dir.mkdir(parents=True, exist_ok=True)
+    mcap_path, rows_path, attempts = segment_paths(seg_dir, index)
+    with open(attempts, "a") as f:
+        f.write(f"{run_id} {os.getpid()} {socket.gethostname()}\n")
+    t0 = time.monotonic()
+    rec = Recording.open(job.input)
+    geometry = load_geometry(rec.meta, job.calibration)
+    params = load_parameters(rec.meta, job.overrides)
+    sink = McapSink(mcap_path, {})
+    segment = Segment(index, first, stop)
+    try:
+        report, publisher = process_into(sink, rec, geometry, params, [segment],
+                                         fields_every=job.fields_every)
+        rows = [summary_row(s) for _t, _truth, s in publisher.truth_log]
+    except BaseException:
+        sink.abort()
+        raise
+    write_parquet(rows_path, rows, SUMMARY_COLUMNS)
+    sink.close()  # last: the .mcap is what marks the segment as written
+    expected = len(segment.triples(n_pairs))
+    return {"segment": index, "triples": report.triples, "failed": report.failed,
+            "expected": expected, "errors": report.errors[:5],
+            "seconds": time.monotonic() - t0, "host": socket.gethostname()}
+
+
+def merge_task(job: Job, n_segments: int, seg_dir: Path, output: Path) -> dict[str, Any]:
+    """Write the job's output: metadata, raw wind, then every segment's messages in order."""
+    from appliance.reprocess.sink import McapSink
+    from appliance.reprocess.source import Recording, load_parameters, read_wind
+
+    rec = Recording.open(job.input)
+    params = load_parameters(rec.meta, job.overrides)
+    sink = McapSink(output, rec.output_metadata(params, job.segment_s))
+    try:
+        sink.record_wind(read_wind(job.input), rec.wall_offset_ns)
+        for i in range(n_segments):
+            sink.copy_from(segment_paths(seg_dir, i)[0])
+    except BaseException:
+        sink.abort()
+        raise
+    sink.close()
+    return {"output": str(output), "messages": sink.messages}

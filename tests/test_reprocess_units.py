@@ -1,0 +1,139 @@
+"""Reprocessing without Ray: segmenting, sweeps, inputs, replay's guarantees, Parquet export."""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.reader import make_reader
+
+from appliance import cli
+from appliance.recording.reader import LogReader
+from appliance.reprocess.jobs import expand_inputs, parameter_grid, split_values
+from appliance.reprocess.segments import cut_segments
+from tests.recording_helpers import cut_recording, interrupt_cli, write_recording
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(1, 400_000_000), min_size=0, max_size=60),
+       st.floats(0.05, 3.0))
+def test_every_pair_and_triple_belongs_to_exactly_one_segment(gaps: list[int],
+                                                               segment_s: float) -> None:
+    times = np.cumsum([10**9, *gaps]).tolist()
+    segments = cut_segments(times, segment_s)
+    n = len(times)
+    pairs = [i for s in segments for i in range(s.first, s.stop)]
+    triples = [k for s in segments for k in s.triples(n)]
+    assert pairs == list(range(n))
+    assert triples == list(range(max(0, n - 2)))
+    for s in segments:  # a segment spans less than segment_s of recording
+        assert times[s.stop - 1] - times[s.first] < segment_s * 1e9
+
+
+def test_no_segmenting_is_one_segment() -> None:
+    assert len(cut_segments([1, 2, 3, 4], None)) == 1
+    with pytest.raises(ValueError, match="segment-s"):
+        cut_segments([1, 2, 3], 0.0)
+
+
+def test_parameter_sweep_is_the_product_of_the_value_lists() -> None:
+    grid = parameter_grid(["alpha=0.05,0.1", "nu=0.5", "flow_options={n_sor: 4, n_inner: 2}"])
+    assert grid == [{"alpha": 0.05, "nu": 0.5, "flow_options": {"n_sor": 4, "n_inner": 2}},
+                    {"alpha": 0.1, "nu": 0.5, "flow_options": {"n_sor": 4, "n_inner": 2}}]
+    assert split_values("[1, 2],'a,b',3") == ["[1, 2]", "'a,b'", "3"]
+    assert parameter_grid([]) == [{}]
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        parameter_grid(["alpha"])
+
+
+def test_inputs_are_files_folders_and_globs(tmp_path: Path) -> None:
+    a = tmp_path / "site1" / "day1" / "a.mcap"
+    b = tmp_path / "site2" / "b.mcap.active"
+    out = tmp_path / "site1" / "out" / "done.mcap"
+    for p in (a, b, out):
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"x")
+    (tmp_path / "site1" / "notes.txt").write_text("no")
+    assert expand_inputs([str(tmp_path)], exclude=out.parent) == [a, b]
+    assert expand_inputs([str(tmp_path / "*" / "**" / "*.mcap")]) == [a, out]
+    assert expand_inputs([str(a), str(a)]) == [a]
+    assert expand_inputs([str(tmp_path / "site*") + "/"], exclude=out.parent) == [a, b]
+    with pytest.raises(ValueError, match="no MCAP"):
+        expand_inputs([str(tmp_path / "missing")])
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_recording(tmp_path_factory.mktemp("rec") / "rec.mcap", 60)
+
+
+def test_replay_with_segments_restarts_cold_at_borders(recording: Path, tmp_path: Path) -> None:
+    from appliance.reprocess.segments import Segment, run_segments
+    from appliance.reprocess.source import Recording
+    from tests.recording_helpers import GEOMETRY, PARAMS
+
+    class Collect:
+        def __init__(self) -> None:
+            self.results: list = []
+
+        def record_pair(self, index: int, pair: object) -> None:
+            pass
+
+        def publish(self, res: object, fields: bool) -> None:
+            self.results.append(res)
+
+    rec = Recording.open(recording)
+    one, two = Collect(), Collect()
+    run_segments(rec, GEOMETRY, PARAMS, [Segment(0, 0, 58)], one)
+    run_segments(rec, GEOMETRY, PARAMS, [Segment(0, 0, 20), Segment(1, 20, 58)], two)
+    assert [r.pair_indices for r in one.results] == [r.pair_indices for r in two.results]
+    scale = [r.diff_scale for r in one.results], [r.diff_scale for r in two.results]
+    assert scale[0][:20] == scale[1][:20]  # same state before the border
+    assert scale[0][20] != scale[1][20]  # a fresh normalisation scale after it
+
+
+def test_replay_writes_parquet_through_export(recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    assert cli.main(["replay", str(recording), "--fast", "--out", str(out),
+                     "--fields-every", "7"]) == 0
+    counts = Counter(t for t, *_ in LogReader(out))
+    assert counts["/sceneflow/summary"] == 58 and counts["/pairs"] == 60
+    assert counts["/sceneflow/velocity"] == 8  # triples 6, 13, ..., 55
+    assert cli.main(["export", str(out), "--to", "parquet", "--out", str(tmp_path / "x")]) == 0
+    table = pq.read_table(tmp_path / "x_summary.parquet")
+    assert table.num_rows == 58
+    assert {"time", "vx_m_s", "angle_z_deg", "c_usf", "gas_pixels"} <= set(table.column_names)
+    assert str(table.schema.field("time").type) == "timestamp[ns, tz=UTC]"
+    assert pq.read_table(tmp_path / "x_wind.parquet").num_rows == counts["/wind/camera"] + 40
+
+
+def test_replay_of_a_recording_cut_by_kill_9_warns_and_keeps_everything_before(
+        recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cut = cut_recording(recording, tmp_path / "cut.mcap", 0.6)
+    out = tmp_path / "cut-replay.mcap"
+    assert cli.main(["replay", str(cut), "--fast", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "ends early" in err
+    n = Counter(t for t, *_ in LogReader(out))
+    assert 10 < n["/sceneflow/summary"] == n["/pairs"] - 2 < 58
+
+
+def test_replay_ctrl_c_leaves_a_valid_file_with_what_was_processed(tmp_path: Path) -> None:
+    src = write_recording(tmp_path / "long.mcap", 240)  # 8 s at the recorded pace
+    out = tmp_path / "out.mcap"
+    code, err = interrupt_cli(["replay", str(src), "--out", str(out)],
+                              lambda: bool(list(tmp_path.glob(".out.mcap.*.part"))),
+                              after_s=3.0)  # paced: about 90 frames in
+    assert code == cli.EXIT_INTERRUPTED, err
+    assert "interrupted" in err
+    with open(out, "rb") as f:  # finished: summary and index present
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    n = Counter(t for t, *_ in LogReader(out))
+    assert 0 < n["/sceneflow/summary"] < 238
+    assert not list(tmp_path.glob("*.part"))
