@@ -20,10 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from appliance.config import load_config
-from appliance.recording.recorder import file_metadata
+from appliance.recording.metadata import file_metadata, processing_metadata
 from appliance.recording.schemas import WIND_SAMPLE, MessageSchema, encode_json
 from appliance.reprocess.sink import McapSink
-from appliance.runtime.daemon import processing_metadata
 from drivers.camera.base import Frame
 from drivers.camera.mcap_format import frame_to_messages
 from processing.chain import ChainParameters, StereoGeometry
