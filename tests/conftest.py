@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+
+# Ray (the reprocess tests) resolves 127.0.0.1 to the host's network address and listens
+# there unless this is set before ray is first imported: keep every test on loopback.
+os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
 
 import pytest
 

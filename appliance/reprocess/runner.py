@@ -10,6 +10,7 @@ manifest, after a task has returned, so the manifest never claims more than exis
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 import uuid
@@ -97,6 +98,11 @@ class Runner:
     # ------------------------------------------------------------------ ray
 
     def _init(self) -> Any:
+        if self.address is None and "ray" not in sys.modules:
+            # A local Ray stays on loopback: Ray resolves 127.0.0.1 to the host's network
+            # address (and listens there) unless clusters are "disabled", which is read from
+            # the environment when ray is first imported. A cluster has its own addresses.
+            os.environ.setdefault("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")
         ray = import_ray()
         if not ray.is_initialized():
             # A local Ray stays on loopback; a cluster has its own addresses.
