@@ -4,9 +4,9 @@ Exit codes (shared by every subcommand):
 
 - 0: success
 - 1: the job ran but failed (a device error, a failed check, an evaluation that could
-  not run)
+  not run; for ``run``, any fault after the configuration was accepted)
 - 2: bad usage or bad input (unknown option, wrong config key, unreadable or malformed
-  file); the message names the problem
+  input file of a one-shot command); the message names the problem
 - 130: interrupted by SIGINT before finishing
 """
 
@@ -96,7 +96,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ogiflow {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     except (ValueError, OSError) as exc:
-        # Bad input (malformed file, wrong size, missing path): one clear line, exit 2.
+        # Bad input of a one-shot command or a configuration error (``run`` turns its
+        # runtime faults into CommandError itself): one clear line, exit 2.
         if args.debug:
             raise
         print(f"ogiflow {args.command}: error: {exc}", file=sys.stderr)

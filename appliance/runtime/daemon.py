@@ -31,14 +31,14 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from appliance.config import Config
-from appliance.exitcodes import EXIT_OK
+from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
+from appliance.runtime.acquisition import Counters
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, worker_main
@@ -47,22 +47,6 @@ from processing.chain import ChainParameters, StereoGeometry
 log = logging.getLogger("ogiflow")
 
 SIDES = ("left", "right")
-
-
-@dataclass
-class _Counters:
-    """Counters shared by the daemon's threads (simple ints: the GIL makes += safe enough
-    for statistics; nothing depends on exact values across threads)."""
-
-    frames: dict[str, int] = field(default_factory=lambda: {s: 0 for s in SIDES})
-    frame_queue_drops: int = 0
-    camera_timeouts: int = 0
-    camera_reconnects: int = 0
-    pairs: int = 0
-    results: int = 0
-    result_errors: int = 0
-    skipped_pairs: int = 0
-    wind_samples: int = 0
 
 
 class Appliance:
@@ -84,7 +68,7 @@ class Appliance:
         self.duration_s = duration_s
         self.announce = announce
         self.stop_event = threading.Event()
-        self.counters = _Counters()
+        self.counters = Counters()
         self._threads: list[threading.Thread] = []
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
         self.recorder: Any = None
@@ -95,6 +79,9 @@ class Appliance:
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         self.live_url: str | None = None
+        #: Faults that end the run with exit code 1 (a thread died, files not finalised).
+        self.failures: list[str] = []
+        self._workers: list[Any] = []
 
     # ------------------------------------------------------------------ helpers
 
@@ -175,7 +162,9 @@ class Appliance:
             self._wait()
         if self.announce:
             self._announce_end()
-        return EXIT_OK
+        for text in self.failures:
+            log.error("run failed: %s", text)
+        return EXIT_FAILURE if self.failures else EXIT_OK
 
     def _prepare(self) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
@@ -215,7 +204,7 @@ class Appliance:
         assert self.geometry is not None
         metadata.update(processing_metadata(self.geometry, self.params))
         self.recorder = Recorder(cfg.recording, metadata).start()
-        stack.callback(self.recorder.close, timeout=5.0)
+        stack.callback(self._close_recorder)
 
     def _start_live(self, stack: contextlib.ExitStack) -> None:
         if self.cfg.live.mode == "off":
@@ -235,21 +224,33 @@ class Appliance:
         w, h = self.geometry.image_size
         self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
-        ctx = mp.get_context("spawn")
-        results = ctx.Queue(maxsize=64)
-        stop_workers = ctx.Event()
-        workers: list[Any] = []
-        stack.callback(self._stop_processing, stop_workers, workers)
+        self._mp = mp.get_context("spawn")
+        self._results = self._mp.Queue(maxsize=64)
+        self._stop_workers = self._mp.Event()
+        stack.callback(self._stop_processing)
         if cfg.processing.enabled:
             for i in range(cfg.processing.workers):
-                p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                                args=(i, self.ring.handle(), results, stop_workers,
-                                      self.geometry, self.params), daemon=True)
-                p.start()
-                workers.append(p)
+                self._workers.append(self._start_worker(i))
         else:
             self._workers_done.set()
-        self._spawn(self._results_loop, "results", results)
+        self._spawn(self._results_loop, "results", self._results)
+
+    def _start_worker(self, i: int) -> Any:
+        p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                             args=(i, self.ring.handle(), self._results, self._stop_workers,
+                                   self.geometry, self.params), daemon=True)
+        p.start()
+        return p
+
+    def _supervise_workers(self) -> None:
+        """Start a new worker in place of one that died (OOM killer, a crash in native code):
+        processing resumes with the next window of the ring."""
+        for i, p in enumerate(self._workers):
+            if p.is_alive() or self.stop_event.is_set():
+                continue
+            log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
+            self.counters.worker_restarts += 1
+            self._workers[i] = self._start_worker(i)
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
         from appliance.runtime.health import (
@@ -300,9 +301,13 @@ class Appliance:
             if t.name.startswith("camera") or t.name == "pairing":
                 t.join(timeout=2.0)
 
-    def _stop_processing(self, stop_workers: Any, workers: list[Any]) -> None:
-        stop_workers.set()
-        for p in workers:
+    def _close_recorder(self) -> None:
+        if not self.recorder.close(timeout=5.0):
+            self.failures.append("the recorder did not finish its files within 5 s")
+
+    def _stop_processing(self) -> None:
+        self._stop_workers.set()
+        for p in self._workers:
             p.join(timeout=2.0)
             if p.is_alive():
                 p.terminate()
@@ -330,6 +335,7 @@ class Appliance:
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
+            self._supervise_workers()
             if t_end is not None and time.monotonic() >= t_end:
                 break
 
@@ -358,9 +364,20 @@ class Appliance:
                 f"{comparison['direction_error_deg']:.1f} deg\n")
 
     def _spawn(self, target: Any, name: str, *args: Any) -> None:
-        t = threading.Thread(target=target, name=name, args=args, daemon=True)
+        t = threading.Thread(target=self._guarded, name=name, args=(target, name, *args),
+                             daemon=True)
         t.start()
         self._threads.append(t)
+
+    def _guarded(self, target: Any, name: str, *args: Any) -> None:
+        """Run a thread's loop; an exception escaping it stops the run with exit code 1
+        (systemd restarts the service) instead of leaving a half-working appliance."""
+        try:
+            target(*args)
+        except BaseException as exc:
+            log.exception("thread %s died", name)
+            self.failures.append(f"thread {name} died: {type(exc).__name__}: {exc}")
+            self.stop_event.set()
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         log.info("signal %d: shutting down", signum)
@@ -370,6 +387,10 @@ class Appliance:
         c = self.counters
         out = {
             "frames_left": c.frames["left"], "frames_right": c.frames["right"],
+            "frames_lost_left": c.frames_lost["left"],
+            "frames_lost_right": c.frames_lost["right"],
+            "unpaired_left": c.unpaired["left"], "unpaired_right": c.unpaired["right"],
+            "worker_restarts": c.worker_restarts,
             "pairs": c.pairs, "results": c.results, "result_errors": c.result_errors,
             "skipped_pairs": c.skipped_pairs, "frame_queue_drops": c.frame_queue_drops,
             "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,

@@ -35,10 +35,17 @@ class StereoStamper:
     def push(self, side: str, frame: Any, now_ns: int | None) -> list[Any]:
         """Stamp one frame (capture time from its clock model) and return new pairs."""
         t = self.clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
-        return self.pairer.push(side, t, frame, now_ns=now_ns)
+        return self._forget_unpaired(self.pairer.push(side, t, frame, now_ns=now_ns))
 
     def poll(self, now_ns: int) -> list[Any]:
-        return self.pairer.poll(now_ns)
+        return self._forget_unpaired(self.pairer.poll(now_ns))
+
+    def _forget_unpaired(self, pairs: list[Any]) -> list[Any]:
+        # The pairer keeps released frames (images included) until taken; nobody here needs
+        # them beyond the counts in pairer.stats, and keeping them grows memory by a whole
+        # camera's frame rate while the other camera is out.
+        self.pairer.take_unpaired()
+        return pairs
 
     def flush(self) -> list[Any]:
         return self.pairer.flush()
