@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # `python benchmarks/soak.py` from a checkout
 
-PAGE = "http://127.0.0.1:9090/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A9876%2Fproxy"
+PAGE = "http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
 CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
                  "--ignore-gpu-blocklist"]
 
@@ -83,8 +83,10 @@ def slope_mb_per_h(t_s: np.ndarray, rss_mb: np.ndarray) -> float | None:
     return float(np.polyfit(t_s / 3600.0, rss_mb, 1)[0])
 
 
-def browse(stop: threading.Event, start_s: float, minutes: float, log: list[str]) -> None:
+def browse(stop: threading.Event, start_s: float, minutes: float, page_url: str,
+           log: list[str]) -> None:
     """Open the live view in headless Chromium from ``start_s`` for ``minutes``."""
+    t_start = time.monotonic()
     if stop.wait(start_s):
         return
     try:
@@ -96,11 +98,11 @@ def browse(stop: threading.Event, start_s: float, minutes: float, log: list[str]
         browser = pw.chromium.launch(executable_path=shutil.which("chromium") or
                                      "/usr/bin/chromium", args=CHROMIUM_ARGS)
         page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(PAGE, timeout=120_000)
-        log.append(f"browser: connected at {time.monotonic():.0f}")
+        page.goto(page_url, timeout=120_000)
+        log.append(f"browser: page loaded at {time.monotonic() - t_start:.0f} s")
         stop.wait(minutes * 60.0)
         browser.close()
-        log.append(f"browser: closed at {time.monotonic():.0f}")
+        log.append(f"browser: closed at {time.monotonic() - t_start:.0f} s")
 
 
 def last_health(rec_dir: Path) -> dict[str, Any] | None:
@@ -149,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="connect a headless browser to the live view at this minute")
     ap.add_argument("--browser-minutes", type=float, default=10.0)
     ap.add_argument("--out", type=Path, default=Path("soak-out"))
+    ap.add_argument("--ports", type=int, nargs=2, default=(9876, 9090), metavar=("GRPC", "WEB"),
+                    help="live view ports (another appliance on the box may hold the defaults)")
     ap.add_argument("--keep-recordings", action="store_true")
     ap.add_argument("--config", default=None)
     ap.add_argument("--set", action="append", default=[], dest="set_options")
@@ -158,7 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     rec_dir = args.out / "rec"
     cmd = [sys.executable, "-m", "appliance", "run", "--duration", str(args.minutes * 60),
-           "--record-dir", str(rec_dir), "--set", "recording.quota_gb=20"]
+           "--record-dir", str(rec_dir), "--set", "recording.quota_gb=20",
+           "--set", f"live.grpc_port={args.ports[0]}", "--set", f"live.web_port={args.ports[1]}"]
     if args.config:
         cmd += ["--config", args.config]
     for s in args.set_options:
@@ -174,7 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     browser = None
     if args.browser_at is not None:
         browser = threading.Thread(target=browse, daemon=True, args=(
-            stop, args.browser_at * 60, args.browser_minutes, events))
+            stop, args.browser_at * 60, args.browser_minutes,
+            PAGE.format(grpc=args.ports[0], web=args.ports[1]), events))
         browser.start()
     rows: list[tuple[float, str, int, float]] = []
     load: list[float] = []

@@ -97,6 +97,9 @@ class PairingConfig:
         "largest |t_left - t_right| of a pair in seconds; null = half a frame period", None,
         gt=0.0, max=10.0,
     )
+    max_delay_s: float = _opt(
+        "seconds a frame waits for its partner before it is given up as unpaired (a busy "
+        "machine delays camera threads by a few hundred ms)", 1.0, gt=0.0, max=60.0)
 
 
 @dataclass(frozen=True)
@@ -163,6 +166,10 @@ class LiveConfig:
     queue_size: int = _opt("live items queued before new ones are dropped", 8, min=1,
                            max=10_000)
     jpeg_quality: int = _opt("JPEG quality of live images", 80, min=1, max=100)
+    server_memory_mb: int = _opt(
+        "serve mode: MB of recent live data the viewer server keeps for browsers that "
+        "connect later (0 = none); bounds its memory (about 1.6x this + 60 MB)", 64,
+        min=0, max=100_000)
 
 
 @dataclass(frozen=True)

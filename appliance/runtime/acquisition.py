@@ -174,7 +174,8 @@ class Acquisition:
 
     def pairing_loop(self) -> None:
         """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
-        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz, self.cfg.pairing.tolerance_s)
+        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz,
+                                self.cfg.pairing.tolerance_s, self.cfg.pairing.max_delay_s)
         stream = self.health.stream("pairs")
         index = 0
         while True:
@@ -185,7 +186,9 @@ class Acquisition:
                     break
                 pairs = stamper.poll(time.monotonic_ns())
             else:
-                pairs = stamper.push(side, frame, time.monotonic_ns())
+                # "Now" is the frame's arrival, not this thread's clock: when this thread
+                # lags, the partner may already wait in the queue and must not be given up.
+                pairs = stamper.push(side, frame, frame.host_ns)
             for p in pairs:
                 self._write_pair(index, p)
                 stream.tick()

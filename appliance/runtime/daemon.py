@@ -211,7 +211,8 @@ class Appliance:
             return
         from appliance.live.view import LiveView
 
-        self.live = LiveView(self.cfg.live).start()
+        self.live = LiveView(self.cfg.live,
+                             server_memory_limit=f"{self.cfg.live.server_memory_mb}MB").start()
         stack.callback(self.live.close)
         self.live_url = getattr(self.live, "url", None)
 
@@ -397,7 +398,10 @@ class Appliance:
             "wind_samples": c.wind_samples,
         }
         if self.recorder is not None:
-            out["recorder_drops"] = int(self.recorder.stats().messages_dropped)
+            rs = self.recorder.stats()
+            out["recorder_drops"] = int(rs.messages_dropped)
+            out["recorder_write_errors"] = rs.write_errors
+            out["recording_paused"] = int(rs.paused)
         if self.live is not None:
             out["live_drops"] = int(self.live.stats().dropped)
         if self.ring is not None:

@@ -24,12 +24,16 @@ class StereoStamper:
         Nominal frame rate of both cameras.
     tolerance_s : float or None
         Pairing tolerance; None = half a frame period.
+    max_delay_s : float
+        How long a frame waits for its partner before it is released unpaired.
     """
 
-    def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None) -> None:
+    def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None,
+                 max_delay_s: float = 0.2) -> None:
         period = int(1e9 / frame_rate_hz)
         self.pairer: StereoPairer[Any] = StereoPairer(
-            period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9))
+            period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9),
+            max_delay_ns=int(max_delay_s * 1e9))
         self.clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
 
     def push(self, side: str, frame: Any, now_ns: int | None) -> list[Any]:
