@@ -272,5 +272,7 @@ def test_full_disk_pauses_then_resumes_and_every_file_stays_readable(
         msgs, _meta, summary = _read_all(path)  # the seeking reader accepts every file
         assert summary is not None
         frames += [m for t, m in msgs if t == "/camera/left/image"]
-    assert len(frames) + st.drops_by_topic.get("/camera/left/image", 0) == 60
+    # Each frame is in a file, counted as dropped, or was in the chunk the full disk cut.
+    missing = 60 - len(frames) - st.drops_by_topic.get("/camera/left/image", 0)
+    assert 0 <= missing <= st.messages_lost_in_cut_files
     assert any(m == _frame(59) for m in frames[-5:])  # recording did resume

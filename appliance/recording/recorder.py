@@ -75,6 +75,8 @@ class RecorderStats:
     files_closed: int = 0
     files_deleted: int = 0
     files_recovered: int = 0
+    #: Messages that were in the open chunk of a file cut by a write error (not recoverable).
+    messages_lost_in_cut_files: int = 0
     write_errors: int = 0
     last_error: str = ""
     current_file: str = ""
@@ -135,6 +137,7 @@ class Recorder:
         self._retry_at = 0.0
         self._on_error = on_error
         self._accepting = False
+        self._cut: dict[Path, int] = {}  # file cut by a write error -> messages written to it
 
     # ------------------------------------------------------------------ producer side
 
@@ -315,6 +318,7 @@ class Recorder:
         try:
             f.close()  # a full disk may still take the summary (it is small)
         except (OSError, ValueError):
+            self._cut[f.path] = f.messages
             try:
                 f.stream.close()
             except OSError:
@@ -345,8 +349,10 @@ class Recorder:
         from appliance.recording.recovery import recover_unfinished
 
         reports = recover_unfinished(self._dir)
+        lost = sum(self._cut.pop(r.source, r.messages_kept) - r.messages_kept for r in reports)
         with self._lock:
             self._stats.files_recovered += len(reports)
+            self._stats.messages_lost_in_cut_files += lost
 
     # ------------------------------------------------------------------ files
 

@@ -89,6 +89,7 @@ class Acquisition:
         self.ring = ring
         self.watchdog = watchdog
         self._last_frame_id: dict[str, int | None] = {s: None for s in SIDES}
+        self.anemometer: Any = None
         self._frame_q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=512)
         self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
             collections.OrderedDict())
@@ -206,6 +207,22 @@ class Acquisition:
             while len(self._pair_frame_ids) > 4 * self.cfg.ring.capacity + 64:
                 self._pair_frame_ids.popitem(last=False)
         self.publisher.record_pair(index, p)
+
+    def start_anemometer(self, history: Any, mounting: Any) -> Any:
+        """Create the anemometer back end and start its reader thread (returned)."""
+        from drivers.anemometer.reader import AnemometerReader
+        from drivers.anemometer.registry import make_anemometer
+
+        a = self.cfg.anemometer
+        options = self.site.anemometer_options()
+        if a.backend == "serial":
+            options.setdefault("protocol", a.protocol)
+            options.setdefault("url", a.port)
+            options.setdefault("baudrate", a.baud)
+            options.setdefault("parity", a.parity)
+        self.anemometer = make_anemometer(a.backend, **options)
+        return AnemometerReader(self.anemometer, on_sample=self.on_wind, history=history,
+                                mounting=mounting).start()
 
     def on_wind(self, sample: Any) -> None:
         """Reader-thread callback: record the raw sample (never blocks)."""

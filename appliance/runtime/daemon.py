@@ -28,7 +28,6 @@ import logging
 import multiprocessing as mp
 import queue
 import signal
-import sys
 import threading
 import time
 from pathlib import Path
@@ -39,6 +38,7 @@ import numpy as np
 from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.runtime.acquisition import Counters
+from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, worker_main
@@ -158,10 +158,11 @@ class Appliance:
             stack.callback(self._begin_shutdown)
             self._install_signals()
             self.notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
-            self._announce_start()
+            if self.announce:
+                announce_start(self)
             self._wait()
         if self.announce:
-            self._announce_end()
+            announce_end(self)
         for text in self.failures:
             log.error("run failed: %s", text)
         return EXIT_FAILURE if self.failures else EXIT_OK
@@ -284,7 +285,7 @@ class Appliance:
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
-        reader = self._start_anemometer()
+        reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
         for side in SIDES:
@@ -329,7 +330,7 @@ class Appliance:
         for sig, handler in self._previous_handlers.items():
             signal.signal(sig, handler)
 
-    # ------------------------------------------------------------------ waiting, banner
+    # ------------------------------------------------------------------ waiting
 
     def _wait(self) -> None:
         t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
@@ -339,30 +340,6 @@ class Appliance:
             self._supervise_workers()
             if t_end is not None and time.monotonic() >= t_end:
                 break
-
-    def _announce_start(self) -> None:
-        if not self.announce:
-            return
-        where = self.live_url or "off"
-        rec = str(self.cfg.recording.dir) if self.cfg.recording.enabled else "off"
-        sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
-                         f"(Ctrl-C or SIGTERM stops)\n")
-
-    def _announce_end(self) -> None:
-        c = self.counters
-        sys.stderr.write(
-            f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
-            f"pairs {c.pairs}, processed {c.results}, skipped {c.skipped_pairs}, "
-            f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
-        comparison = self.publisher.truth_comparison()
-        if comparison is not None:
-            sys.stderr.write(
-                "ogiflow: simulated ground truth vs measured mean gas velocity over "
-                f"{comparison['frames']} valid frames: truth "
-                f"{_fmt(comparison['truth_m_s'])} m/s, measured "
-                f"{_fmt(comparison['measured_m_s'])} m/s, magnitude error "
-                f"{comparison['magnitude_error_pct']:.1f} %, direction error "
-                f"{comparison['direction_error_deg']:.1f} deg\n")
 
     def _spawn(self, target: Any, name: str, *args: Any) -> None:
         t = threading.Thread(target=self._guarded, name=name, args=(target, name, *args),
@@ -406,29 +383,7 @@ class Appliance:
             out["live_drops"] = int(self.live.stats().dropped)
         if self.ring is not None:
             out["ring_overwrites"] = int(self.ring.stats().overwrites)
-        if getattr(self, "_anemometer", None) is not None:
-            counts = self._anemometer.counts
+        if getattr(self.acquisition, "anemometer", None) is not None:
+            counts = self.acquisition.anemometer.counts
             out["serial_errors"] = int(counts.checksum_failures + counts.malformed)
         return out
-
-    # ------------------------------------------------------------------ anemometer
-
-    def _start_anemometer(self) -> Any:
-        from drivers.anemometer.reader import AnemometerReader
-        from drivers.anemometer.registry import make_anemometer
-
-        a = self.cfg.anemometer
-        assert self.site is not None
-        options = self.site.anemometer_options()
-        if a.backend == "serial":
-            options.setdefault("protocol", a.protocol)
-            options.setdefault("url", a.port)
-            options.setdefault("baudrate", a.baud)
-            options.setdefault("parity", a.parity)
-        self._anemometer = make_anemometer(a.backend, **options)
-        return AnemometerReader(self._anemometer, on_sample=self.acquisition.on_wind,
-                                history=self.history, mounting=self._mounting).start()
-
-
-def _fmt(v: Any) -> str:
-    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"
