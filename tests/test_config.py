@@ -253,3 +253,8 @@ def test_unreadable_calibration_and_file_in_place_of_a_directory(tmp_path: Path)
     errors = _problems([("calibration", str(bad)), ("recording.dir", str(blocker))])
     assert any(e.startswith("calibration: ") and "format" in e for e in errors)
     assert any(e.startswith("recording.dir: ") and "not a directory" in e for e in errors)
+
+
+def test_camera_option_values_are_checked_before_devices_open() -> None:
+    errors = _problems([("cameras.left.options", {"drop_rate": 2.0})])
+    assert errors == ["cameras.left.options: drop_rate must be in [0, 1), got 2.0"]

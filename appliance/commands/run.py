@@ -36,6 +36,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from appliance.config import ConfigError, config_from_args
+    from drivers.anemometer.base import AnemometerConfigError
     from appliance.live.view import LiveViewError
     from appliance.runtime.daemon import Appliance
 
@@ -47,8 +48,8 @@ def run(args: argparse.Namespace) -> int:
     appliance = Appliance(cfg, duration_s=args.duration, announce=True)
     try:
         return appliance.run()
-    except ConfigError:
-        raise
+    except (ConfigError, AnemometerConfigError):
+        raise  # a wrong option value found when the back end is built: exit 2
     except (LiveViewError, OSError, ValueError, RuntimeError) as exc:
         # A full /dev/shm, a vanished device node, a busy port: transient faults of a
         # running appliance, exit 1 so that systemd restarts it.

@@ -239,10 +239,13 @@ def _accepted_options(cls: type, *also: type) -> set[str] | None:
 
 
 def _check_options(path: str, options: Mapping[str, Any], accepted: set[str],
-                   errors: list[str]) -> None:
-    for key in sorted(set(options) - accepted):
+                   errors: list[str]) -> bool:
+    """Report option keys the back end does not take; True when all are known."""
+    unknown = sorted(set(options) - accepted)
+    for key in unknown:
         errors.append(f"{path}.{key}: not an option of this back end"
                       f"{_did_you_mean(key, accepted)}; accepted: {', '.join(sorted(accepted))}")
+    return not unknown
 
 
 def _check_name(path: str, name: str, table: Mapping[str, str], kind: str,
@@ -273,7 +276,12 @@ def _device_checks(cfg: Config, errors: list[str]) -> None:
         except CameraBackendMissing as exc:
             errors.append(f"{path}.backend: {exc}")
             continue
-        _check_options(f"{path}.options", cam.options, _accepted_options(cls), errors)
+        accepted = _accepted_options(cls)
+        if _check_options(f"{path}.options", cam.options, accepted, errors):
+            try:  # values: building a camera object opens nothing
+                cls(**cam.options)
+            except (ValueError, TypeError) as exc:
+                errors.append(f"{path}.options: {exc}")
     a = cfg.anemometer
     protocol_ok = _check_name("anemometer.protocol", a.protocol, anemometers.PROTOCOLS,
                               "anemometer protocol", errors)
