@@ -18,6 +18,8 @@ if [ "$dev" = 1 ]; then
     # private network namespace.
     apt_packages+=(systemd gir1.2-aravis-0.8 aravis-tools gcc libgirepository1.0-dev
                    libcairo2-dev pkg-config iproute2)
+    # Fault injection: stress-ng loads the CPUs beside the daemon (tests/test_faults.py).
+    apt_packages+=(stress-ng)
 fi
 
 missing=()
