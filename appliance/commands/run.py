@@ -36,9 +36,9 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from appliance.config import ConfigError, config_from_args
-    from drivers.anemometer.base import AnemometerConfigError
     from appliance.live.view import LiveViewError
     from appliance.runtime.daemon import Appliance
+    from drivers.anemometer.base import AnemometerConfigError
 
     logging.basicConfig(level=getattr(logging, args.log_level), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -270,13 +270,13 @@ class SimulatedCamera(Camera):
         k, device_ns, arrival_rel, lost = self._next_event()
         arrival = self.epoch_ns + arrival_rel
         if self.realtime:
-            self._check_outage(arrival, timeout)
-            wait_ns = arrival - time.monotonic_ns()
-            if wait_ns > timeout * 1e9:
-                time.sleep(timeout)
-                raise CameraTimeout(f"{self.label}: no frame within {timeout} s")
-            if wait_ns > 0:
-                time.sleep(wait_ns / 1e9)
+            if self._outage_ns is not None and arrival >= self._outage_ns[0]:
+                # The outage begins before this frame: wait for it like for a frame.
+                self._sleep_until(self._outage_ns[0], timeout)
+                if time.monotonic_ns() < self._outage_ns[1]:
+                    raise CameraDisconnected(f"{self.label}: connection lost (simulated "
+                                             "outage)")
+            self._sleep_until(arrival, timeout)
             host_ns = time.monotonic_ns()
         else:
             host_ns = arrival
@@ -296,20 +296,14 @@ class SimulatedCamera(Camera):
             temperatures={"sensor": 35.0},
         )
 
-    def _check_outage(self, arrival_ns: int, timeout: float) -> None:
-        """Raise CameraDisconnected once the simulated outage has begun (waiting for its
-        start like for a frame)."""
-        if self._outage_ns is None or arrival_ns < self._outage_ns[0]:
-            return
-        start, end = self._outage_ns
-        wait_ns = start - time.monotonic_ns()
+    def _sleep_until(self, t_ns: int, timeout: float) -> None:
+        """Sleep until monotonic ``t_ns``; CameraTimeout when that is beyond ``timeout``."""
+        wait_ns = t_ns - time.monotonic_ns()
         if wait_ns > timeout * 1e9:
             time.sleep(timeout)
             raise CameraTimeout(f"{self.label}: no frame within {timeout} s")
         if wait_ns > 0:
             time.sleep(wait_ns / 1e9)
-        if time.monotonic_ns() < end:
-            raise CameraDisconnected(f"{self.label}: connection lost (simulated outage)")
 
     def _shift(self, image: np.ndarray) -> np.ndarray:
         dx, dy = self._rng.normal(0.0, self.image_jitter_px, 2)
