@@ -109,13 +109,19 @@ def test_rotation_by_size_reregisters_channels(tmp_path: Path) -> None:
 
 
 def test_rotation_by_time(tmp_path: Path) -> None:
-    rec = Recorder(_rc(tmp_path, rotate_s=0.25)).start()
+    """An injected clock: one new file per 10 s of it, whatever the machine's speed."""
+    now = [0.0]
+    rec = Recorder(_rc(tmp_path, rotate_s=10.0, fsync_s=100.0), clock=lambda: now[0]).start()
     for i in range(12):
         rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
-        time.sleep(0.1)
+        t_end = time.monotonic() + 10
+        while rec.stats().queue_depth and time.monotonic() < t_end:  # written before the step
+            time.sleep(0.005)
+        now[0] += 4.0  # a rotation after every third message
+        time.sleep(0.3)  # one housekeeping tick of the writer (at most 0.2 s) sees it
     rec.close()
     files = closed_files(tmp_path / "rec")
-    assert len(files) >= 2
+    assert 3 <= len(files) <= 5
     assert sum(len(_read_all(p)[0]) for p in files) == 12
 
 

@@ -11,7 +11,7 @@ import os
 import re
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO
@@ -70,7 +70,7 @@ class OpenFile:
     """One open MCAP file and its per-file registrations."""
 
     def __init__(self, path: Path, rc: RecordingConfig, metadata: Mapping[str, Mapping[str, str]],
-                 sequence: int) -> None:
+                 sequence: int, clock: Callable[[], float] = time.monotonic) -> None:
         self.path = path
         self.stream: IO[bytes] = open(path, "xb")  # closed in close()
         self.writer = Writer(self.stream, chunk_size=rc.chunk_kb * 1024,
@@ -78,7 +78,8 @@ class OpenFile:
         self.writer.start(profile="", library=f"ogiflow {__version__}")
         self.schemas: dict[tuple[str, str, bytes], int] = {}
         self.channels: dict[tuple[str, int], int] = {}
-        self.opened_mono = time.monotonic()
+        self._clock = clock
+        self.opened_mono = clock()
         self.last_fsync = self.opened_mono
         self.messages = 0
         now = datetime.now(timezone.utc)
@@ -114,7 +115,7 @@ class OpenFile:
         self.writer.flush()
         self.stream.flush()
         os.fsync(self.stream.fileno())
-        self.last_fsync = time.monotonic()
+        self.last_fsync = self._clock()
 
     def close(self) -> Path:
         """Finish the file (summary, index), fsync, rename ``.active`` away; return final path."""

@@ -109,6 +109,8 @@ class Recorder:
         Bound on queued payload bytes (default 256 MB), besides ``rc.queue_size`` messages.
     on_error
         Called with the text of each write error (from the writer thread).
+    clock
+        Monotonic seconds for rotation, fsync and retry times (tests inject one).
 
     Use as a context manager or call :meth:`start` and :meth:`close`.
     """
@@ -116,7 +118,8 @@ class Recorder:
     def __init__(self, rc: RecordingConfig,
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
                  *, queue_bytes: int = DEFAULT_QUEUE_BYTES,
-                 on_error: Callable[[str], None] | None = None) -> None:
+                 on_error: Callable[[str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if rc.compression not in COMPRESSION:
             raise ValueError(f"recording.compression: unknown {rc.compression!r}")
         self._rc = rc
@@ -136,6 +139,7 @@ class Recorder:
         self._sequence = 0
         self._retry_at = 0.0
         self._on_error = on_error
+        self._clock = clock
         self._accepting = False
         self._cut: dict[Path, int] = {}  # file cut by a write error -> messages written to it
 
@@ -286,7 +290,7 @@ class Recorder:
         f = self._file
         if f is None:
             return
-        now = time.monotonic()
+        now = self._clock()
         try:
             if (f.size() >= self._rc.rotate_mb * 1e6
                     or now - f.opened_mono >= self._rc.rotate_s):
@@ -312,7 +316,7 @@ class Recorder:
         if self._on_error is not None:
             self._on_error(text)
         f, self._file = self._file, None
-        self._retry_at = time.monotonic() + RETRY_S
+        self._retry_at = self._clock() + RETRY_S
         if f is None:
             return
         try:
@@ -326,7 +330,7 @@ class Recorder:
 
     def _resume(self) -> bool:
         """While paused: once space is back, recover cut files and open a new one."""
-        now = time.monotonic()
+        now = self._clock()
         if now < self._retry_at:
             return False
         self._retry_at = now + RETRY_S
@@ -362,7 +366,7 @@ class Recorder:
             path = new_path(self._dir, self._sequence)
             if not path.exists() and not path.with_name(path.name[:-7]).exists():
                 break
-        self._file = OpenFile(path, self._rc, self._metadata, self._sequence)
+        self._file = OpenFile(path, self._rc, self._metadata, self._sequence, self._clock)
         with self._lock:
             self._stats.current_file = str(path)
         log.info("recording to %s", path)
