@@ -258,3 +258,11 @@ def test_unreadable_calibration_and_file_in_place_of_a_directory(tmp_path: Path)
 def test_camera_option_values_are_checked_before_devices_open() -> None:
     errors = _problems([("cameras.left.options", {"drop_rate": 2.0})])
     assert errors == ["cameras.left.options: drop_rate must be in [0, 1), got 2.0"]
+
+
+def test_live_view_address_and_url_are_checked() -> None:
+    errors = _problems([("live.bind", "my-laptop"), ("live.web_port", 9876)])
+    assert any(e.startswith("live.bind: must be an IP address") for e in errors)
+    assert any(e.startswith("live.web_port: must differ") for e in errors)
+    errors = _problems([("live.mode", "connect"), ("live.url", "http://127.0.0.1:9876")])
+    assert errors[0].startswith("live.url: must be a Rerun gRPC URL")

@@ -181,9 +181,12 @@ def _build(cls: type, data: Any, prefix: str, errors: list[str]) -> Any:
 def _cross_checks(cfg: Config, errors: list[str]) -> None:
     """Rules that involve more than one key."""
     live = cfg.live
-    if live.mode == "serve" and live.grpc_port == live.web_port:
-        errors.append(f"live.web_port: must differ from live.grpc_port, both are "
-                      f"{live.grpc_port}")
+    if live.mode == "serve":
+        _check_serve(live, errors)
+    if live.mode == "connect" and not live.url.startswith(("rerun+http://", "rerun+https://",
+                                                           "rerun://")):
+        errors.append(f"live.url: must be a Rerun gRPC URL such as "
+                      f"rerun+http://127.0.0.1:9876/proxy, got {live.url!r}")
     if cfg.recording.quota_gb is not None and cfg.recording.quota_gb * 1000 < (
             2 * cfg.recording.rotate_mb):
         errors.append(
@@ -198,6 +201,26 @@ def _cross_checks(cfg: Config, errors: list[str]) -> None:
         errors.append(f"live.file: {str(cfg.live.file)!r} is a directory")
     _check_calibration(cfg, errors)
     _check_processing(cfg, errors)
+
+
+def _check_serve(live: Any, errors: list[str]) -> None:
+    import ipaddress
+    import os
+
+    if live.grpc_port == live.web_port:
+        errors.append(f"live.web_port: must differ from live.grpc_port, both are "
+                      f"{live.grpc_port}")
+    if live.bind != "localhost":
+        try:
+            ipaddress.ip_address(live.bind)
+        except ValueError:
+            errors.append(f"live.bind: must be an IP address of this machine (127.0.0.1, "
+                          f"0.0.0.0, ...), got {live.bind!r}")
+    if os.geteuid() != 0:
+        for key in ("grpc_port", "web_port"):
+            if getattr(live, key) < 1024:
+                errors.append(f"live.{key}: ports below 1024 need root, got "
+                              f"{getattr(live, key)}")
 
 
 def _check_calibration(cfg: Config, errors: list[str]) -> None:
