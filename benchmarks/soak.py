@@ -208,10 +208,14 @@ def main(argv: list[str] | None = None) -> int:
     for key in sorted({(r, p) for _t, r, p, _m in rows}):
         pts = np.array([(t, m) for t, r, p, m in rows if (r, p) == key and t >= warm])
         allpts = [m for t, r, p, m in rows if (r, p) == key]
+        half = pts[len(pts) // 2:] if len(pts) else pts
         procs[f"{key[0]}:{key[1]}"] = {
             "rss_start_mb": allpts[0], "rss_end_mb": allpts[-1], "rss_max_mb": max(allpts),
             "slope_after_warmup_mb_per_h": (slope_mb_per_h(pts[:, 0], pts[:, 1])
-                                            if len(pts) else None)}
+                                            if len(pts) else None),
+            # A cache still filling shows as a slope that falls from half to half.
+            "slope_last_half_mb_per_h": (slope_mb_per_h(half[:, 0], half[:, 1])
+                                         if len(half) else None)}
     c = (health or {}).get("counters", {})
     frames = c.get("frames_left", 0) + c.get("frames_right", 0)
     lost = (c.get("frames_lost_left", 0) + c.get("frames_lost_right", 0)
@@ -221,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         "warmup_min": args.warmup_min, "processes": procs,
         "frames": frames, "frames_lost": lost, "recorder_drops": c.get("recorder_drops"),
         "pairs": c.get("pairs"),
+        "unpaired": [c.get("unpaired_left"), c.get("unpaired_right")],
         "paired_pct": 100.0 * 2 * c.get("pairs", 0) / frames if frames else None,
         "results": c.get("results"), "skipped_pairs": c.get("skipped_pairs"),
         "load_avg_1min": {"mean": float(np.mean(load)) if load else None,
