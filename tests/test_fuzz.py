@@ -42,8 +42,8 @@ def mcap_bytes(tmp_path_factory: pytest.TempPathFactory) -> bytes:
     rc = dataclasses.replace(RecordingConfig(), dir=d, quota_gb=None, chunk_kb=16)
     with Recorder(rc, {"config": {"yaml": "a: 1"}}) as rec:
         for i in range(12):
-            img = np.random.default_rng(i).integers(0, 4096, (24, 32), dtype=np.uint16)
-            rec.record("/camera/left/image", S.RAW_IMAGE, S.raw_image(img, i, "cam"), i)
+            field = np.random.default_rng(i).normal(size=(24, 32, 2)).astype(np.float32)
+            rec.record("/sceneflow/flow", S.GRID, S.grid(field, i, "camera_left", ("u", "v")), i)
             rec.record("/sceneflow/summary", S.SCENEFLOW_SUMMARY, S.encode_json(
                 S.SCENEFLOW_SUMMARY, {"t_mono_ns": i, "t_wall_ns": i, "pair_index": i,
                                       "gas_pixels": 0, "mean_velocity_m_s": None,

@@ -249,36 +249,36 @@ def test_full_disk_pauses_then_resumes_and_every_file_stays_readable(
     from tests.faults import FullDisk
 
     disk = FullDisk(monkeypatch)
-    rec = Recorder(_rc(tmp_path, chunk_kb=64)).start()
+    rec = Recorder(_rc(tmp_path, chunk_kb=16)).start()
 
     def wait_for(cond: object, what: str) -> None:
         t_end = time.monotonic() + 30
         while not cond():  # type: ignore[operator]
             assert time.monotonic() < t_end, what
-            rec.record("/wind/raw", S.WIND_SAMPLE, _wind(0), 1)
+            rec.record("/health", S.WIND_SAMPLE, _wind(0), 1)
             time.sleep(0.02)
 
     for i in range(40):
-        rec.record("/camera/left/image", S.RAW_IMAGE, _frame(i), i)
+        rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
     disk.full.set()
     wait_for(lambda: rec.stats().paused, "the recorder did not pause on ENOSPC")
     assert "No space left on device" in rec.stats().last_error
     disk.full.clear()
     wait_for(lambda: not rec.stats().paused, "the recorder did not resume")
     for i in range(40, 60):
-        rec.record("/camera/left/image", S.RAW_IMAGE, _frame(i), i)
+        rec.record("/wind/raw", S.WIND_SAMPLE, _wind(i), i)
     assert rec.close()
     st = rec.stats()
     assert disk.failed_writes >= 1 and st.write_errors >= 1
     assert unfinished_files(tmp_path / "rec") == []
     files = closed_files(tmp_path / "rec")
     assert len(files) >= 2  # the paused file and the one recording resumed in
-    frames = []
+    samples = []
     for path in files:
         msgs, _meta, summary = _read_all(path)  # the seeking reader accepts every file
         assert summary is not None
-        frames += [m for t, m in msgs if t == "/camera/left/image"]
-    # Each frame is in a file, counted as dropped, or was in the chunk the full disk cut.
-    missing = 60 - len(frames) - st.drops_by_topic.get("/camera/left/image", 0)
+        samples += [m for t, m in msgs if t == "/wind/raw"]
+    # Each sample is in a file, counted as dropped, or was in the chunk the full disk cut.
+    missing = 60 - len(samples) - st.drops_by_topic.get("/wind/raw", 0)
     assert 0 <= missing <= st.messages_lost_in_cut_files
-    assert any(m == _frame(59) for m in frames[-5:])  # recording did resume
+    assert samples[-1] == _wind(59)  # recording did resume
