@@ -26,11 +26,7 @@ from appliance import cli
 from appliance.config import load_config
 from appliance.recording.reader import LogReader, read_metadata
 from appliance.runtime.daemon import Appliance
-
-SMALL_SCENE = [
-    ("simulation.frames", 24),
-    ("simulation.voxel_m", 0.12),
-]
+from tests.conftest import SMALL_SCENE
 
 
 def stop_when(app: Appliance, done: Callable[[object], bool], deadline_s: float = 200.0
@@ -75,10 +71,10 @@ def lines_until(stream: object, marker: str, timeout_s: float) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict:
+def recorded(tmp_path_factory: pytest.TempPathFactory, scene_cache: Path) -> dict:
     """One simulated run of a few seconds; its recording, counters and ground truth."""
     tmp = tmp_path_factory.mktemp("run")
-    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(tmp / "cache")),
+    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(scene_cache)),
                              ("recording.dir", str(tmp / "rec")), ("live.mode", "save"),
                              ("live.file", str(tmp / "live.rrd")), ("recording.fields_every", 5)])
     app = Appliance(cfg, duration_s=240.0)
@@ -87,7 +83,7 @@ def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict:
     stop_when(app, lambda c: c.results >= 12 and c.frames["left"] >= 150)
     assert app.run() == 0
     files = sorted((tmp / "rec").glob("ogiflow-*.mcap"))
-    return {"tmp": tmp, "app": app, "files": files}
+    return {"tmp": tmp, "app": app, "files": files, "cache": scene_cache}
 
 
 def test_every_frame_and_wind_sample_is_recorded(recorded: dict) -> None:
@@ -173,7 +169,7 @@ def test_config_error_exits_2_and_names_the_key(capsys: pytest.CaptureFixture[st
 
 def test_sigterm_finalises_files_and_exits_0(recorded: dict, tmp_path: Path) -> None:
     """SIGTERM as systemd sends it: exit 0 with every file closed (no .active left)."""
-    cache = recorded["tmp"] / "cache"  # the scene is already rendered
+    cache = recorded["cache"]  # the scene is already rendered
     args = [sys.executable, "-m", "appliance", "run", "--live", "off",
             "--record-dir", str(tmp_path / "rec"), "--set", f"simulation.cache_dir={cache}"]
     for key, value in SMALL_SCENE:
@@ -207,7 +203,7 @@ def test_a_dead_thread_fails_the_run_with_exit_1(recorded: dict, tmp_path: Path,
         raise RuntimeError("injected fault")
 
     monkeypatch.setattr(Acquisition, "pairing_loop", broken)
-    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(recorded["tmp"] / "cache")),
+    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(recorded["cache"])),
                              ("recording.dir", str(tmp_path / "rec")), ("live.mode", "off"),
                              ("processing.enabled", False)])
     app = Appliance(cfg, duration_s=60.0)

@@ -26,14 +26,9 @@ from appliance.recording.reader import LogReader, iter_json
 from appliance.recording.recorder import closed_files, unfinished_files
 from appliance.runtime.daemon import Appliance
 from appliance.runtime.health import status_line
+from tests.conftest import SMALL_SCENE
 
 ROOT = Path(__file__).resolve().parent.parent
-SMALL_SCENE = [("simulation.frames", 24), ("simulation.voxel_m", 0.12)]
-
-
-@pytest.fixture(scope="module")
-def scene_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("scene")
 
 
 def make_app(cache: Path, rec: Path, *extra: tuple[str, Any]) -> Appliance:
