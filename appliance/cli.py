@@ -82,9 +82,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ogiflow`` console script; returns the process exit code."""
     from appliance.runtime.tuning import keep_freed_memory
 
-    keep_freed_memory()
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command != "run":
+        # Numerical commands run faster with freed memory kept. The daemon's main process
+        # does no numerics (its workers set this themselves) but has many threads and
+        # bursty buffers: kept freed memory there only makes its RSS ratchet upwards.
+        keep_freed_memory()
     try:
         return int(args.func(args) or EXIT_OK)
     except KeyboardInterrupt:
