@@ -215,6 +215,10 @@ class Acquisition:
 
         a = self.cfg.anemometer
         options = self.site.anemometer_options()
+        if a.backend == "simulated":
+            # The simulator's log of sent frames is for tests that compare; in a run it
+            # would grow the daemon by ~17 MB/h until it trims at 200 000 frames.
+            options.setdefault("history", 1000)
         if a.backend == "serial":
             options.setdefault("protocol", a.protocol)
             options.setdefault("url", a.port)
