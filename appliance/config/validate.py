@@ -19,7 +19,9 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import inspect
+import ipaddress
 import math
+import os
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -204,9 +206,6 @@ def _cross_checks(cfg: Config, errors: list[str]) -> None:
 
 
 def _check_serve(live: Any, errors: list[str]) -> None:
-    import ipaddress
-    import os
-
     if live.grpc_port == live.web_port:
         errors.append(f"live.web_port: must differ from live.grpc_port, both are "
                       f"{live.grpc_port}")
@@ -251,7 +250,7 @@ def _check_processing(cfg: Config, errors: list[str]) -> None:
         errors.append(f"processing.parameters: {exc}")
 
 
-def _accepted_options(cls: type, *also: type) -> set[str] | None:
+def _accepted_options(cls: type, *also: type) -> set[str]:
     """Keyword names ``cls(...)`` accepts (and the classes it forwards ``**kwargs`` to)."""
     names: set[str] = set()
     for c in (cls, *also):
