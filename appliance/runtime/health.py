@@ -145,8 +145,9 @@ class HealthMonitor:
     """Registry of the appliance's health numbers; :meth:`snapshot` reads them all."""
 
     def __init__(self, stall_s: float = 10.0, frame_streams: tuple[str, ...] = (
-            "cam/left", "cam/right")) -> None:
-        self._start = time.monotonic()
+            "cam/left", "cam/right"), clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock  # monotonic seconds (tests inject one)
+        self._start = clock()
         self.stall_s = stall_s
         self.frame_streams = frame_streams
         self._streams: dict[str, StreamCounter] = {}
@@ -187,7 +188,7 @@ class HealthMonitor:
 
     def snapshot(self) -> HealthSnapshot:
         """Read everything; rates and latency means are over the time since the last call."""
-        now = time.monotonic()
+        now = self._clock()
         snap = HealthSnapshot(t_mono_ns=time.monotonic_ns(), t_wall_ns=time.time_ns(),
                               uptime_s=now - self._start)
         with self._lock:
