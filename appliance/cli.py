@@ -4,9 +4,9 @@ Exit codes (shared by every subcommand):
 
 - 0: success
 - 1: the job ran but failed (a device error, a failed check, an evaluation that could
-  not run)
+  not run; for ``run``, any fault after the configuration was accepted)
 - 2: bad usage or bad input (unknown option, wrong config key, unreadable or malformed
-  file); the message names the problem
+  input file of a one-shot command); the message names the problem
 - 130: interrupted by SIGINT before finishing
 """
 
@@ -85,9 +85,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ogiflow`` console script; returns the process exit code."""
     from appliance.runtime.tuning import keep_freed_memory
 
-    keep_freed_memory()
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command != "run":
+        # Numerical commands run faster with freed memory kept. The daemon's main process
+        # does no numerics (its workers set this themselves) but has many threads and
+        # bursty buffers: kept freed memory there only makes its RSS ratchet upwards.
+        keep_freed_memory()
     try:
         return int(args.func(args) or EXIT_OK)
     except KeyboardInterrupt:
@@ -99,7 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ogiflow {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     except (ValueError, OSError) as exc:
-        # Bad input (malformed file, wrong size, missing path): one clear line, exit 2.
+        # Bad input of a one-shot command or a configuration error (``run`` turns its
+        # runtime faults into CommandError itself): one clear line, exit 2.
         if args.debug:
             raise
         print(f"ogiflow {args.command}: error: {exc}", file=sys.stderr)

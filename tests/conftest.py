@@ -1,4 +1,5 @@
-"""Shared fixtures: paths to the reference data shipped with the repository."""
+"""Shared fixtures: paths to the reference data shipped with the repository, and the small
+simulated scene the whole-daemon tests share (rendered once per test session)."""
 
 from __future__ import annotations
 
@@ -24,3 +25,14 @@ def data_dir() -> Path:
 def test_data_dir() -> Path:
     """``tests/data/`` (small golden files)."""
     return ROOT / "tests" / "data"
+
+
+@pytest.fixture(scope="session")
+def scene_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``simulation.cache_dir`` for whole-daemon tests: with :data:`SMALL_SCENE` the scene is
+    rendered by the first test that runs the daemon and reused by the others."""
+    return tmp_path_factory.mktemp("scene-cache")
+
+
+#: Config overrides of a small, coarse simulated scene (fast to render, still a real plume).
+SMALL_SCENE = [("simulation.frames", 24), ("simulation.voxel_m", 0.12)]

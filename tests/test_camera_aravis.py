@@ -76,7 +76,7 @@ def _host_addresses() -> list[str]:
     return sorted(set(addrs), key=lambda a: (not a.startswith("127."), a))
 
 
-def _run_scenario(name: str, n_addresses: int) -> dict:
+def _run_scenario(name: str, n_addresses: int, timeout: float = 90) -> dict:
     """Run ``_scenario_<name>`` in a private network namespace (or, failing that, on host
     addresses); return its JSON result."""
     missing = _aravis_missing()
@@ -101,7 +101,7 @@ def _run_scenario(name: str, n_addresses: int) -> dict:
         stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT, start_new_session=True,
     )  # fmt: skip
     try:
-        out, err = proc.communicate(timeout=90)
+        out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, signal.SIGKILL)  # the fake cameras too
         out, err = proc.communicate()
@@ -133,6 +133,19 @@ def test_two_fake_gige_cameras_pair_and_recover_after_one_is_killed() -> None:
     assert r["pairs_after"] >= 30  # pairing resumed with the restarted camera
     assert r["max_abs_residual_ms"] <= 1000 / 30 / 2
     assert r["left_disconnects"] == 0
+
+
+def test_daemon_survives_a_fake_camera_killed_for_5_s() -> None:
+    """The whole daemon on two fake GigE cameras; the right one's process is killed and
+    started again 5 s later: the left camera and the recording go on, health names the
+    outage, and the right camera's frames come back."""
+    r = _run_scenario("daemon", 2, timeout=150)
+    assert r["code"] == 0
+    assert r["silent_seen"]
+    assert r["frames_lost"]["left"] == 0 and r["left_during_outage"] > 100
+    assert r["right_after"] >= 30 and r["recovery_s"] is not None
+    assert r["recorded"]["left"] == r["frames"]["left"]
+    assert r["recorded"]["right"] == r["frames"]["right"]
 
 
 # --------------------------------------------------------------------------------------
@@ -300,6 +313,81 @@ def _scenario_pair() -> dict:
         # from starting the new fake process to the first frame of it through the old reader
         "recovery_s": None if first_after is None else round(first_after - restarted_at, 2),
     }
+
+
+def _scenario_daemon() -> dict:
+    import tempfile
+    import threading
+    import time
+    from collections import Counter
+
+    from appliance.config import load_config
+    from appliance.recording.reader import LogReader
+    from appliance.recording.recorder import closed_files
+    from appliance.runtime.daemon import Appliance
+    from appliance.runtime.health import status_line
+    from processing.calibration import ideal_calibration, save_calibration
+
+    ip_left, ip_right = _addresses(2)
+    fakes = {"left": _start_fake("OGIL", ip_left), "right": _start_fake("OGIR", ip_right)}
+    tmp = Path(tempfile.mkdtemp(prefix="ogiflow-aravis-daemon-"))
+    save_calibration(tmp / "stereo.yaml", ideal_calibration(400.0, 0.25))
+    cam = {"pixel_format": "Mono16", "fps": 30.0, "width": 320, "height": 240}
+    cfg = load_config(None, [
+        ("cameras.left.backend", "aravis"), ("cameras.right.backend", "aravis"),
+        ("cameras.left.options", {**cam, "serial": "OGIL", "label": "left"}),
+        ("cameras.right.options", {**cam, "serial": "OGIR", "label": "right"}),
+        ("calibration", str(tmp / "stereo.yaml")), ("recording.dir", str(tmp / "rec")),
+        ("live.mode", "off"), ("processing.enabled", False), ("health.interval_s", 0.2),
+        ("simulation.cache_dir", str(tmp / "cache"))])
+    app = Appliance(cfg, duration_s=120.0)
+    c = app.counters
+    out: dict = {"silent_seen": False, "recovery_s": None}
+
+    def wait(cond: object, limit: float) -> bool:
+        t_end = time.monotonic() + limit
+        while not cond() and time.monotonic() < t_end:  # type: ignore[operator]
+            time.sleep(0.02)
+        return bool(cond())  # type: ignore[operator]
+
+    def control() -> None:
+        try:
+            wait(lambda: c.pairs >= 60, 30)
+            fakes["right"].send_signal(signal.SIGKILL)
+            fakes["right"].wait()
+            left0 = c.frames["left"]
+            right0 = c.frames["right"]
+            t_kill = time.monotonic()
+            while time.monotonic() - t_kill < 5.0:
+                out["silent_seen"] |= "cam/right SILENT" in status_line(app.health.snapshot())
+                time.sleep(0.1)
+            out["left_during_outage"] = c.frames["left"] - left0
+            out["right_during_outage"] = c.frames["right"] - right0
+            fakes["right"] = _start_fake("OGIR", ip_right)
+            t_start = time.monotonic()
+            right1 = c.frames["right"]
+            if wait(lambda: c.frames["right"] > right1, 30):
+                out["recovery_s"] = round(time.monotonic() - t_start, 2)
+            wait(lambda: c.frames["right"] >= right1 + 30, 20)
+            out["right_after"] = c.frames["right"] - right1
+        finally:
+            app.stop_event.set()
+
+    threading.Thread(target=control, daemon=True).start()
+    out["code"] = app.run()
+    recorded: Counter = Counter()
+    for path in closed_files(tmp / "rec"):
+        recorded.update(t for t, *_ in LogReader(path))
+    out["recorded"] = {s: recorded[f"/camera/{s}/image"] for s in ("left", "right")}
+    out["frames"] = dict(c.frames)
+    out["frames_lost"] = dict(c.frames_lost)
+    out["reconnect_attempts"] = c.camera_reconnects
+    out["unpaired"] = dict(c.unpaired)
+    for p in fakes.values():
+        p.kill()
+        p.wait()
+    shutil.rmtree(tmp, ignore_errors=True)
+    return out
 
 
 if __name__ == "__main__" and "--scenario" in sys.argv:

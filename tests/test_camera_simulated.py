@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from drivers.camera import CameraError, EndOfStream, create_camera
-from drivers.camera.simulated import TimingModel, TimingParams
+from drivers.camera.simulated import SimulatedCamera, TimingModel, TimingParams
 from drivers.camera.sources import SyntheticDirSource, TexturePatternSource, load_source
 
 
@@ -120,3 +120,30 @@ def test_pattern_source_is_shared_and_read_only() -> None:
     assert left.dtype == np.uint16 and left.shape == (240, 320)
     assert not left.flags.writeable
     np.testing.assert_array_equal(left[:, :-8], right[:, 8:])  # constant disparity
+
+
+def test_outage_disconnects_refuses_to_open_and_skips_its_frames() -> None:
+    """``outage_after_s``/``outage_s``: the fault injection the daemon tests use."""
+    import time
+
+    from drivers.camera.base import CameraDisconnected
+
+    label = f"outage-{time.monotonic_ns()}"
+    cam = SimulatedCamera("left", "pattern", outage_after_s=0.3, outage_s=0.4, label=label)
+    cam.open()
+    cam.start()
+    ids = []
+    with pytest.raises(CameraDisconnected):
+        for _ in range(100):
+            ids.append(cam.grab(1.0).device_frame_id)
+    cam.close()
+    again = SimulatedCamera("left", "pattern", outage_after_s=0.3, outage_s=0.4, label=label)
+    with pytest.raises(CameraDisconnected):
+        again.open()  # still away
+    time.sleep(0.45)
+    again.open()
+    again.start()
+    first = again.grab(1.0).device_frame_id
+    again.close()
+    assert 5 <= len(ids) <= 12  # ~0.3 s of frames at 30 Hz
+    assert first - ids[-1] >= 10  # the ~0.4 s outage's frames were never delivered

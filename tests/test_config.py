@@ -25,8 +25,10 @@ def test_default_file_equals_builtin_defaults() -> None:
 
 
 def test_site_example_is_valid_apart_from_its_calibration_path(tmp_path: Path) -> None:
+    from processing.calibration import ideal_calibration, save_calibration
+
     cal = tmp_path / "stereo.yaml"
-    cal.write_text("{}\n")
+    save_calibration(cal, ideal_calibration(400.0, 0.25))
     cfg = C.load_config(ROOT / "config" / "site.example.yaml", [("calibration", str(cal))])
     assert cfg.anemometer.backend == "serial"
     assert cfg.cameras.left.options == {"serial": "LEFT-SERIAL"}
@@ -205,3 +207,62 @@ def test_config_yaml_round_trip() -> None:
     cfg = C.load_config(None, [("recording.dir", "/data/rec"), ("live.mode", "off")])
     again = C.validate_config(yaml.safe_load(C.config_to_yaml(cfg)))
     assert again == cfg
+
+
+def _problems(overrides: list[tuple[str, object]]) -> list[str]:
+    with pytest.raises(C.ConfigError) as info:
+        C.validate_config(C.apply_overrides({}, overrides))
+    return info.value.errors
+
+
+def test_misspelt_back_end_is_a_config_error_with_a_suggestion() -> None:
+    errors = _problems([("cameras.left.backend", "simulted")])
+    assert len(errors) == 1
+    assert errors[0].startswith("cameras.left.backend: unknown camera back end 'simulted'")
+    assert "did you mean 'simulated'?" in errors[0]
+
+
+def test_option_keys_protocols_and_ports_are_checked_all_at_once() -> None:
+    errors = _problems([("cameras.right.options", {"fsp": 25}),
+                      ("anemometer.protocol", "gil"),
+                      ("anemometer.options", {"rate_hx": 10}),
+                      ("processing.parameters", {"alhpa": 0.1})])
+    text = "\n".join(errors)
+    assert "cameras.right.options.fsp: not an option of this back end (did you mean 'fps'?)" \
+        in text
+    assert "anemometer.protocol: unknown anemometer protocol 'gil' (did you mean 'gill'?)" \
+        in text
+    assert "anemometer.options.rate_hx" in text and "did you mean 'rate_hz'?" in text
+    assert "processing.parameters: unknown processing parameter(s) alhpa" in text
+    assert len(errors) == 4
+
+
+def test_serial_back_end_needs_a_port_and_real_cameras_a_calibration() -> None:
+    errors = _problems([("anemometer.backend", "serial"),
+                      ("cameras.left.backend", "opencv"), ("cameras.right.backend", "opencv")])
+    assert any(e.startswith("anemometer.port: the serial back end needs a port") for e in errors)
+    assert any(e.startswith("calibration: a stereo calibration file is required")
+               for e in errors)
+
+
+def test_unreadable_calibration_and_file_in_place_of_a_directory(tmp_path: Path) -> None:
+    bad = tmp_path / "cal.yaml"
+    bad.write_text("format: something-else\n")
+    blocker = tmp_path / "rec"
+    blocker.write_text("not a directory")
+    errors = _problems([("calibration", str(bad)), ("recording.dir", str(blocker))])
+    assert any(e.startswith("calibration: ") and "format" in e for e in errors)
+    assert any(e.startswith("recording.dir: ") and "not a directory" in e for e in errors)
+
+
+def test_camera_option_values_are_checked_before_devices_open() -> None:
+    errors = _problems([("cameras.left.options", {"drop_rate": 2.0})])
+    assert errors == ["cameras.left.options: drop_rate must be in [0, 1), got 2.0"]
+
+
+def test_live_view_address_and_url_are_checked() -> None:
+    errors = _problems([("live.bind", "my-laptop"), ("live.web_port", 9876)])
+    assert any(e.startswith("live.bind: must be an IP address") for e in errors)
+    assert any(e.startswith("live.web_port: must differ") for e in errors)
+    errors = _problems([("live.mode", "connect"), ("live.url", "http://127.0.0.1:9876")])
+    assert errors[0].startswith("live.url: must be a Rerun gRPC URL")

@@ -10,11 +10,14 @@ from __future__ import annotations
 import csv
 import json
 import os
+import queue
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -23,24 +26,64 @@ from appliance import cli
 from appliance.config import load_config
 from appliance.recording.reader import LogReader, read_metadata
 from appliance.runtime.daemon import Appliance
+from tests.conftest import SMALL_SCENE
 
-SMALL_SCENE = [
-    ("simulation.frames", 24),
-    ("simulation.voxel_m", 0.12),
-]
+
+def stop_when(app: Appliance, done: Callable[[object], bool], deadline_s: float = 200.0
+              ) -> threading.Thread:
+    """Stop ``app`` (running in this thread) once ``done(app.counters)`` holds."""
+
+    def watch() -> None:
+        t_end = time.monotonic() + deadline_s
+        while not app.stop_event.wait(0.1) and time.monotonic() < t_end:
+            if done(app.counters):
+                break
+        app.stop_event.set()
+
+    t = threading.Thread(target=watch, daemon=True)
+    t.start()
+    return t
+
+
+def lines_until(stream: object, marker: str, timeout_s: float) -> list[str]:
+    """Lines of a text stream up to and including the one containing ``marker``; fails
+    after ``timeout_s`` instead of blocking forever on a silent process."""
+    q: queue.Queue[str | None] = queue.Queue()
+
+    def pump() -> None:
+        for line in stream:  # type: ignore[attr-defined]
+            q.put(line)
+        q.put(None)
+
+    threading.Thread(target=pump, daemon=True).start()
+    seen: list[str] = []
+    t_end = time.monotonic() + timeout_s
+    while True:
+        try:
+            line = q.get(timeout=max(0.0, t_end - time.monotonic()))
+        except queue.Empty:
+            raise AssertionError(f"no {marker!r} within {timeout_s} s; got {seen[-5:]}") from None
+        if line is None:
+            raise AssertionError(f"process ended before {marker!r}; got {seen[-5:]}")
+        seen.append(line)
+        if marker in line:
+            return seen
 
 
 @pytest.fixture(scope="module")
-def recorded(tmp_path_factory: pytest.TempPathFactory) -> dict:
+def recorded(tmp_path_factory: pytest.TempPathFactory, scene_cache: Path) -> dict:
     """One simulated run of a few seconds; its recording, counters and ground truth."""
     tmp = tmp_path_factory.mktemp("run")
-    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(tmp / "cache")),
+    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(scene_cache)),
                              ("recording.dir", str(tmp / "rec")), ("live.mode", "save"),
                              ("live.file", str(tmp / "live.rrd")), ("recording.fields_every", 5)])
-    app = Appliance(cfg, duration_s=8.0)
+    app = Appliance(cfg, duration_s=240.0)
+    # Stop on a condition, not after a fixed time: numba's cached solvers load slowly on a
+    # busy machine, and the checks below need some results.
+    stop_when(app, lambda c: c.results >= 12 and c.frames["left"] >= 150)
     assert app.run() == 0
     files = sorted((tmp / "rec").glob("ogiflow-*.mcap"))
-    return {"tmp": tmp, "app": app, "files": files}
+    return {"tmp": tmp, "app": app, "files": files, "cache": scene_cache}
 
 
 def test_every_frame_and_wind_sample_is_recorded(recorded: dict) -> None:
@@ -126,7 +169,7 @@ def test_config_error_exits_2_and_names_the_key(capsys: pytest.CaptureFixture[st
 
 def test_sigterm_finalises_files_and_exits_0(recorded: dict, tmp_path: Path) -> None:
     """SIGTERM as systemd sends it: exit 0 with every file closed (no .active left)."""
-    cache = recorded["tmp"] / "cache"  # the scene is already rendered
+    cache = recorded["cache"]  # the scene is already rendered
     args = [sys.executable, "-m", "appliance", "run", "--live", "off",
             "--record-dir", str(tmp_path / "rec"), "--set", f"simulation.cache_dir={cache}"]
     for key, value in SMALL_SCENE:
@@ -135,17 +178,48 @@ def test_sigterm_finalises_files_and_exits_0(recorded: dict, tmp_path: Path) -> 
                             cwd=Path(__file__).resolve().parent.parent,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert proc.stderr is not None
-    deadline = time.monotonic() + 120
-    for line in proc.stderr:
-        if "ogiflow: running" in line or time.monotonic() > deadline:
-            break
-    time.sleep(3.0)
+    try:
+        lines_until(proc.stderr, "ogiflow: running", 180)
+        time.sleep(3.0)
+    finally:
+        proc.send_signal(signal.SIGTERM)
     t0 = time.monotonic()
-    proc.send_signal(signal.SIGTERM)
-    proc.communicate(timeout=30)
+    proc.wait(timeout=30)
     stop_s = time.monotonic() - t0
     print(f"shutdown after SIGTERM took {stop_s:.2f} s")
     assert proc.returncode == 0
     files = list((tmp_path / "rec").glob("ogiflow-*"))
     assert files and all(f.suffix == ".mcap" for f in files)
     assert not LogReader(files[0]).truncated
+
+
+def test_a_dead_thread_fails_the_run_with_exit_1(recorded: dict, tmp_path: Path,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """run() is not always 0: a pairing thread that dies ends the run with exit code 1 (so
+    systemd restarts the service) instead of leaving an appliance that records nothing."""
+    from appliance.runtime.acquisition import Acquisition
+
+    def broken(self: Acquisition) -> None:
+        raise RuntimeError("injected fault")
+
+    monkeypatch.setattr(Acquisition, "pairing_loop", broken)
+    cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(recorded["cache"])),
+                             ("recording.dir", str(tmp_path / "rec")), ("live.mode", "off"),
+                             ("processing.enabled", False)])
+    app = Appliance(cfg, duration_s=60.0)
+    assert app.run() == 1
+    assert any("pairing" in f and "injected fault" in f for f in app.failures)
+    assert list((tmp_path / "rec").glob("ogiflow-*.mcap"))  # files still finalised
+
+
+def test_runtime_fault_exits_1_config_error_exits_2(monkeypatch: pytest.MonkeyPatch,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """A full /dev/shm at run time (OSError) is not a configuration error: exit 1."""
+    def full_shm(self: Appliance) -> int:
+        raise OSError(28, "No space left on device", "/dev/shm/ogiflow-ring")
+
+    monkeypatch.setattr(Appliance, "run", full_shm)
+    assert cli.main(["run", "--live", "off", "--duration", "1"]) == 1
+    assert "No space left on device" in capsys.readouterr().err
+    assert cli.main(["run", "--set", "cameras.left.backend=simulted", "--duration", "1"]) == 2
+    assert "did you mean 'simulated'?" in capsys.readouterr().err

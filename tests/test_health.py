@@ -25,12 +25,12 @@ from appliance.runtime.sdnotify import SdNotifier, Watchdog
 
 
 def test_rates_drops_latencies_counters_gauges(tmp_path: Path) -> None:
-    mon = HealthMonitor(stall_s=5.0)
+    now = [100.0]  # an injected clock: the rate is exact whatever the machine's load
+    mon = HealthMonitor(stall_s=5.0, clock=lambda: now[0])
     left = mon.stream("cam/left")
     mon.snapshot()  # starts the rate interval
-    t0 = time.monotonic()
-    for _ in range(30):
-        left.tick()
+    for i in range(30):
+        left.tick(now=100.0 + i * 0.01)
     left.drop(2)
     lat = mon.latency("processing")
     for ms in (10.0, 30.0):
@@ -39,12 +39,12 @@ def test_rates_drops_latencies_counters_gauges(tmp_path: Path) -> None:
     mon.add_counters(lambda: {"recorder_drops": 0, "serial_errors": 4})
     mon.add_gauges(lambda: {"ring_occupancy": 0.25, "broken": float("nan")})
     mon.add_gauges(disk_free_source(tmp_path / "not" / "yet"))
-    time.sleep(0.05)
+    now[0] = 100.5
     snap = mon.snapshot()
-    elapsed = time.monotonic() - t0
     s = snap.streams["cam/left"]
     assert s.count == 30 and s.drops == 2
-    assert 0 < s.rate_hz <= 30 / elapsed * 1.01 + 1e-9  # 30 items over at most `elapsed`
+    assert s.rate_hz == pytest.approx(60.0)  # 30 items in 0.5 s
+    assert s.last_age_s == pytest.approx(0.5 - 0.29)
     assert snap.latencies["processing"] == {"count": 2, "mean_ms": 20.0, "max_ms": 30.0}
     assert snap.counters == {"skipped_pairs": 3, "recorder_drops": 0, "serial_errors": 4}
     assert snap.gauges["ring_occupancy"] == 0.25 and snap.gauges["broken"] is None

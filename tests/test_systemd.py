@@ -6,6 +6,7 @@ Needs the Debian package `systemd` (for systemd-analyze); `tools/install.sh --de
 from __future__ import annotations
 
 import configparser
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -74,3 +75,35 @@ def test_stop_timeout_leaves_room_for_the_5_s_shutdown() -> None:
     text = UNIT.read_text()
     stop = int(text.split("TimeoutStopSec=")[1].split()[0])
     assert stop >= 10
+
+
+def exposure(unit: Path) -> float:
+    """The overall exposure score of `systemd-analyze security --offline=true` (0-10)."""
+    out = subprocess.run([_analyze(), "security", "--offline=true", str(unit)],
+                         capture_output=True, text=True, timeout=60)
+    for line in (out.stdout + out.stderr).splitlines():
+        if "Overall exposure level" in line:
+            return float(line.split(":")[1].split()[0])
+    raise AssertionError(f"no exposure score in: {out.stdout}{out.stderr}")
+
+
+def test_exposure_score_is_at_most_2(tmp_path: Path) -> None:
+    """The hardening keeps the unit at <= 2.0 (issue 16); it was 3.5 before."""
+    assert exposure(UNIT) <= 2.0
+    weakened = tmp_path / "ogiflow.service"
+    text = UNIT.read_text()
+    weakened.write_text("\n".join(line for line in text.splitlines()
+                                  if not line.startswith(("SystemCallFilter", "IPAddress",
+                                                          "ProtectProc", "ProcSubset"))))
+    assert exposure(weakened) > 2.0  # the check can fail
+
+
+def test_ring_and_serial_still_allowed_by_the_filters() -> None:
+    """What the appliance needs stays open: /dev/shm (ring), the serial ports, the network."""
+    text = UNIT.read_text()
+    assert "RemoveIPC=yes" in text
+    assert not re.search(r"^PrivateDevices=yes", text, re.M)
+    for dev in ("char-ttyS", "char-ttyUSB", "char-ttyACM"):
+        assert f"DeviceAllow={dev} rw" in text
+    assert "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK" in text
+    assert "MemoryDenyWriteExecute=yes" not in text  # numba compiles at run time

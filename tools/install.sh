@@ -24,6 +24,8 @@ if [ "$dev" = 1 ]; then
     # chromium through executable_path; the viewer draws on a canvas, so OCR reads titles).
     apt_packages+=(systemd gir1.2-aravis-0.8 aravis-tools gcc libgirepository1.0-dev
                    libcairo2-dev pkg-config iproute2 mosquitto chromium tesseract-ocr)
+    # Fault injection: stress-ng loads the CPUs beside the daemon (tests/test_faults.py).
+    apt_packages+=(stress-ng)
 fi
 
 missing=()

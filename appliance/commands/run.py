@@ -6,7 +6,8 @@ on a pseudo terminal whose wind drives that plume; it records to ./recordings an
 the live view on http://127.0.0.1:9090.
 
 Exit codes: 0 normal end (duration elapsed, SIGTERM or SIGINT; every file finalised);
-1 a failure while running; 2 a configuration error (the message names the key).
+1 a failure while running (systemd restarts the service); 2 a configuration error, found
+before any device opens (the message names the key; restarting cannot fix it).
 """
 
 from __future__ import annotations
@@ -34,18 +35,22 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.config import config_from_args
+    from appliance.config import ConfigError, config_from_args
     from appliance.live.view import LiveViewError
     from appliance.runtime.daemon import Appliance
+    from drivers.anemometer.base import AnemometerConfigError
 
     logging.basicConfig(level=getattr(logging, args.log_level), stream=sys.stderr,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     if args.duration is not None and not args.duration > 0:
         raise ValueError(f"--duration must be positive, got {args.duration}")
-    cfg = config_from_args(args)
+    cfg = config_from_args(args)  # ConfigError (exit 2) before anything opens
     appliance = Appliance(cfg, duration_s=args.duration, announce=True)
     try:
-        code = appliance.run()
-    except LiveViewError as exc:
-        raise CommandError(str(exc)) from exc
-    return code
+        return appliance.run()
+    except (ConfigError, AnemometerConfigError):
+        raise  # a wrong option value found when the back end is built: exit 2
+    except (LiveViewError, OSError, ValueError, RuntimeError) as exc:
+        # A full /dev/shm, a vanished device node, a busy port: transient faults of a
+        # running appliance, exit 1 so that systemd restarts it.
+        raise CommandError(f"{type(exc).__name__}: {exc}") from exc

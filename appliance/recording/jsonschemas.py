@@ -68,9 +68,12 @@ WIND_SAMPLE = _json_schema(
         "t_device": {**_NUM_OR_NULL,
                      "description": "sensor's own time or counter if it sends one"},
         "sensor": {"type": "string", "description": "protocol/back end, e.g. gill"},
-        "u": {**_NUM, "description": "wind along the sensor's x axis, m/s"},
-        "v": {**_NUM, "description": "wind along the sensor's y axis, m/s"},
-        "w": {**_NUM, "description": "wind along the sensor's z axis, m/s"},
+        "u": {**_NUM_OR_NULL, "description": "wind along the sensor's x axis, m/s "
+                                            "(null: axis failed or not measured)"},
+        "v": {**_NUM_OR_NULL, "description": "wind along the sensor's y axis, m/s "
+                                            "(null: axis failed or not measured)"},
+        "w": {**_NUM_OR_NULL, "description": "wind along the sensor's z axis, m/s "
+                                            "(null: axis failed or not measured)"},
         "speed_of_sound_m_s": _NUM_OR_NULL,
         "sonic_temperature_c": _NUM_OR_NULL,
         "status": {"type": ["integer", "string", "null"],

@@ -9,12 +9,31 @@ from __future__ import annotations
 
 import json
 import struct
+import zlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 from mcap.exceptions import InvalidMagic, McapError
 from mcap.reader import NonSeekingReader
+from zstandard import ZstdError
+
+
+class _Bounded:
+    """A file that refuses reads longer than what is left: a corrupt record length must
+    end the read (the mcap reader then raises EndOfFile), not allocate terabytes."""
+
+    def __init__(self, f: Any, size: int) -> None:
+        self._f = f
+        self._size = size
+
+    def read(self, n: int = -1) -> bytes:
+        if n is not None and n > self._size - self._f.tell():
+            return b""
+        return self._f.read(n)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
 
 
 class LogReader:
@@ -45,14 +64,17 @@ class LogReader:
         except OSError as exc:
             raise ValueError(f"cannot open {self.path}: {exc.strerror}") from None
         try:
-            reader = NonSeekingReader(self._stream)
+            reader = NonSeekingReader(_Bounded(self._stream, self.size))
             try:
                 for _schema, channel, msg in reader.iter_messages(topics=self.topics,
                                                                   log_time_order=False):
                     yield channel.topic, msg.log_time, msg.publish_time, msg.data
             except InvalidMagic:
                 raise ValueError(f"{self.path}: not an MCAP file") from None
-            except (McapError, struct.error, EOFError):
+            except (McapError, struct.error, EOFError, zlib.error, ZstdError, RuntimeError,
+                    UnicodeDecodeError, OverflowError):
+                # Cut, or corrupt from here on (a flipped bit in a chunk or a length):
+                # everything before was read. RuntimeError: lz4 on corrupt data.
                 self.truncated = True
         finally:
             self._stream.close()

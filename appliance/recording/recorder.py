@@ -7,47 +7,47 @@ topic: acquisition never waits for the disk. The default queue holds 4096 messag
 which is > 25 s of raw 2 x 30 Hz 320x240 uint16 frames; the writer itself needs ~3 ms per
 pair with zstd (DESIGN.md), so the queue stays nearly empty in normal operation.
 
-The writer thread owns the files:
+The writer thread owns the files (naming and the open file: :mod:`.files`):
 
-- ``ogiflow-<UTC start>-<sequence>.mcap.active`` while open; on close the summary is written,
-  the file fsynced and renamed to ``.mcap``. A ``.active`` file left behind was cut by a crash:
-  ``ogiflow recover`` rewrites it (:func:`unfinished_files` lists them).
 - Rotation by size (``rotate_mb``) and by time (``rotate_s``); every new file registers its
   schemas and channels again and carries the metadata records again.
 - Disk quota (``quota_gb``): after each rotation and at start, the oldest *closed* files of our
   own naming pattern are deleted until the total (including the open file) fits.
 - Every ``fsync_s`` the open chunk is closed and the file fsynced: a power cut loses at most
   that much.
-- Metadata records in every file: ``recording`` (software version, host name, start time,
-  file sequence) and whatever the caller passes (:func:`file_metadata` builds ``config`` with
-  the YAML text of the effective configuration and ``calibration``).
+- A write error (a full disk, an I/O error) *pauses* recording: the file is finished if it
+  can be, else left ``.active``; messages are dropped and counted; :meth:`Recorder.stats`
+  says ``paused`` and why. Once ``MIN_FREE_BYTES`` are free again (checked every
+  ``RETRY_S``) a cut file is recovered into a readable one and recording resumes in a new
+  file. The daemon keeps running throughout.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
-import os
 import queue
-import re
-import socket
+import shutil
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any
 
-from mcap.writer import CompressionType, Writer
-
-from appliance import __version__
 from appliance.config import RecordingConfig
+from appliance.recording.files import (
+    COMPRESSION,
+    FILE_PATTERN,
+    OpenFile,
+    closed_files,
+    new_path,
+    unfinished_files,
+)
 from appliance.recording.schemas import MessageSchema
 
 __all__ = [
     "FILE_PATTERN",
-    "ChannelTable",
     "Recorder",
     "RecorderStats",
     "closed_files",
@@ -56,42 +56,12 @@ __all__ = [
 
 log = logging.getLogger("ogiflow.recorder")
 
-#: Names of the appliance's own recordings (closed, or still open with ``.active``).
-FILE_PATTERN = re.compile(r"^ogiflow-(\d{8}T\d{6}\d{3}Z)-(\d{4,})\.mcap(\.active)?$")
-
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE}
-
 #: Bound on queued payload bytes (in addition to the message count).
 DEFAULT_QUEUE_BYTES = 256 * 1024 * 1024
-
-
-def _file_key(path: Path) -> tuple[str, int]:
-    m = FILE_PATTERN.match(path.name)
-    assert m is not None
-    return m.group(1), int(m.group(2))
-
-
-def closed_files(directory: Path) -> list[Path]:
-    """The appliance's closed recordings in ``directory``, oldest first."""
-    if not directory.is_dir():
-        return []
-    found = [p for p in directory.iterdir()
-             if FILE_PATTERN.match(p.name) and not p.name.endswith(".active") and p.is_file()]
-    return sorted(found, key=_file_key)
-
-
-def unfinished_files(directory: Path) -> list[Path]:
-    """``.mcap.active`` files in ``directory``: recordings cut by a crash (oldest first).
-
-    Call before starting a :class:`Recorder` on the same directory (it would not touch them,
-    but they need ``ogiflow recover``).
-    """
-    if not directory.is_dir():
-        return []
-    found = [p for p in directory.iterdir() if FILE_PATTERN.match(p.name)
-             and p.name.endswith(".active") and p.is_file()]
-    return sorted(found, key=_file_key)
+#: Free space needed before a paused recorder opens a new file, bytes.
+MIN_FREE_BYTES = 64 * 1024 * 1024
+#: Seconds between attempts to resume a paused recording.
+RETRY_S = 1.0
 
 
 @dataclass
@@ -104,11 +74,16 @@ class RecorderStats:
     bytes_written: int = 0
     files_closed: int = 0
     files_deleted: int = 0
+    files_recovered: int = 0
+    #: Messages that were in the open chunk of a file cut by a write error (not recoverable).
+    messages_lost_in_cut_files: int = 0
     write_errors: int = 0
     last_error: str = ""
     current_file: str = ""
     queue_depth: int = 0
     queue_peak: int = 0
+    #: True while a write error keeps the recorder from writing (messages are dropped).
+    paused: bool = False
 
 
 @dataclass
@@ -120,94 +95,6 @@ class _Item:
     publish_time_ns: int
 
 
-class ChannelTable:
-    """Schema and channel ids of one MCAP ``Writer``, each registered on first use."""
-
-    def __init__(self, writer: Writer) -> None:
-        self.writer = writer
-        self.schemas: dict[tuple[str, str, bytes], int] = {}
-        self.channels: dict[tuple[str, int], int] = {}
-
-    def channel_for(self, topic: str, schema: MessageSchema) -> int:
-        skey = (schema.name, schema.encoding, schema.data)
-        sid = self.schemas.get(skey)
-        if sid is None:
-            sid = self.writer.register_schema(schema.name, schema.encoding, schema.data)
-            self.schemas[skey] = sid
-        cid = self.channels.get((topic, sid))
-        if cid is None:
-            cid = self.writer.register_channel(topic, schema.message_encoding, sid)
-            self.channels[(topic, sid)] = cid
-        return cid
-
-
-class _OpenFile:
-    """One open MCAP file and its per-file registrations."""
-
-    def __init__(self, path: Path, rc: RecordingConfig, metadata: Mapping[str, Mapping[str, str]],
-                 sequence: int) -> None:
-        self.path = path
-        self.stream: IO[bytes] = open(path, "xb")  # closed in close()
-        self.writer = Writer(self.stream, chunk_size=rc.chunk_kb * 1024,
-                             compression=_COMPRESSION[rc.compression])
-        self.writer.start(profile="", library=f"ogiflow {__version__}")
-        self.table = ChannelTable(self.writer)
-        self.opened_mono = time.monotonic()
-        self.last_fsync = self.opened_mono
-        self.messages = 0
-        now = datetime.now(timezone.utc)
-        self.writer.add_metadata("recording", {
-            "software": "ogiflow",
-            "software_version": __version__,
-            "host": socket.gethostname(),
-            "start_time_utc": now.isoformat(),
-            "start_time_ns": str(time.time_ns()),
-            "file_sequence": str(sequence),
-        })
-        for name, data in metadata.items():
-            self.writer.add_metadata(name, {str(k): str(v) for k, v in data.items()})
-
-    def channel_for(self, topic: str, schema: MessageSchema) -> int:
-        return self.table.channel_for(topic, schema)
-
-    def size(self) -> int:
-        return self.stream.tell()
-
-    def sync(self) -> None:
-        """Close the open chunk, flush and fsync (data survives a power cut)."""
-        # Writer.flush() (closes the open chunk) exists from mcap 1.6 on; pyproject asks for it.
-        self.writer.flush()
-        self.stream.flush()
-        os.fsync(self.stream.fileno())
-        self.last_fsync = time.monotonic()
-
-    def close(self) -> Path:
-        """Finish the file (summary, index), fsync, rename ``.active`` away; return final path."""
-        try:
-            self.writer.finish()
-            self.stream.flush()
-            os.fsync(self.stream.fileno())
-        finally:
-            self.stream.close()
-        final = self.path.with_name(self.path.name.removesuffix(".active"))
-        os.replace(self.path, final)
-        _fsync_dir(final.parent)
-        return final
-
-
-def _fsync_dir(directory: Path) -> None:
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass  # some file systems refuse fsync on directories; the rename is still done
-    finally:
-        os.close(fd)
-
-
 class Recorder:
     """Record messages of any topic to rotating MCAP files from one writer thread.
 
@@ -217,9 +104,13 @@ class Recorder:
         The ``recording`` section of the configuration.
     metadata
         Extra metadata records written at the start of every file, ``{name: {key: value}}``
-        (see :func:`file_metadata`).
+        (see :func:`appliance.recording.metadata.file_metadata`).
     queue_bytes
         Bound on queued payload bytes (default 256 MB), besides ``rc.queue_size`` messages.
+    on_error
+        Called with the text of each write error (from the writer thread).
+    clock
+        Monotonic seconds for rotation, fsync and retry times (tests inject one).
 
     Use as a context manager or call :meth:`start` and :meth:`close`.
     """
@@ -227,8 +118,9 @@ class Recorder:
     def __init__(self, rc: RecordingConfig,
                  metadata: Mapping[str, Mapping[str, str]] | None = None,
                  *, queue_bytes: int = DEFAULT_QUEUE_BYTES,
-                 on_error: Callable[[str], None] | None = None) -> None:
-        if rc.compression not in _COMPRESSION:
+                 on_error: Callable[[str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        if rc.compression not in COMPRESSION:
             raise ValueError(f"recording.compression: unknown {rc.compression!r}")
         self._rc = rc
         self._dir = Path(rc.dir)
@@ -243,11 +135,13 @@ class Recorder:
         self._drops: Counter[str] = Counter()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._file: _OpenFile | None = None
+        self._file: OpenFile | None = None
         self._sequence = 0
         self._retry_at = 0.0
         self._on_error = on_error
+        self._clock = clock
         self._accepting = False
+        self._cut: dict[Path, int] = {}  # file cut by a write error -> messages written to it
 
     # ------------------------------------------------------------------ producer side
 
@@ -362,27 +256,23 @@ class Recorder:
                 self._housekeeping()
             except Exception as exc:  # never let the writer thread die: count, log, go on
                 log.exception("recorder: unexpected error")
-                self._error(f"unexpected {type(exc).__name__}: {exc}")
+                self._pause(f"unexpected {type(exc).__name__}: {exc}")
                 if item is not None:
-                    with self._lock:
-                        self._drops[item.topic] += 1
-                self._abandon_file()
+                    self._drop(item.topic)
         if self._file is not None:
-            self._close_file()
+            try:
+                self._close_file()
+            except OSError as exc:
+                self._pause(f"closing {self._file.path.name if self._file else ''}: {exc}")
+
+    def _drop(self, topic: str) -> None:
+        with self._lock:
+            self._drops[topic] += 1
 
     def _write(self, item: _Item) -> None:
-        if self._file is None:
-            if time.monotonic() < self._retry_at:
-                with self._lock:
-                    self._drops[item.topic] += 1
-                return
-            try:
-                self._open_new()
-            except OSError as exc:
-                self._error(f"cannot open a new recording in {self._dir}: {exc}")
-                with self._lock:
-                    self._drops[item.topic] += 1
-                return
+        if self._file is None and not self._resume():
+            self._drop(item.topic)
+            return
         f = self._file
         assert f is not None
         try:
@@ -393,16 +283,14 @@ class Recorder:
             with self._lock:
                 self._stats.messages_written += 1
         except OSError as exc:
-            self._error(f"writing {f.path.name}: {exc}")
-            with self._lock:
-                self._drops[item.topic] += 1
-            self._abandon_file()
+            self._drop(item.topic)
+            self._pause(f"writing {f.path.name}: {_describe(exc)}")
 
     def _housekeeping(self) -> None:
         f = self._file
         if f is None:
             return
-        now = time.monotonic()
+        now = self._clock()
         try:
             if (f.size() >= self._rc.rotate_mb * 1e6
                     or now - f.opened_mono >= self._rc.rotate_s):
@@ -412,23 +300,73 @@ class Recorder:
             elif now - f.last_fsync >= self._rc.fsync_s:
                 f.sync()
         except OSError as exc:
-            self._error(f"rotating/syncing {f.path.name}: {exc}")
-            self._abandon_file()
+            self._pause(f"rotating/syncing {f.path.name}: {_describe(exc)}")
+
+    # ------------------------------------------------------------------ pause / resume
+
+    def _pause(self, text: str) -> None:
+        """Stop writing after an error: finish the file if possible, else leave it cut
+        (``.active``) for :meth:`_resume` to recover; retry after ``RETRY_S``."""
+        with self._lock:
+            self._stats.write_errors += 1
+            self._stats.last_error = text
+            self._stats.paused = True
+            self._stats.current_file = ""
+        log.error("recorder: %s; recording paused", text)
+        if self._on_error is not None:
+            self._on_error(text)
+        f, self._file = self._file, None
+        self._retry_at = self._clock() + RETRY_S
+        if f is None:
+            return
+        try:
+            f.close()  # a full disk may still take the summary (it is small)
+        except (OSError, ValueError):
+            self._cut[f.path] = f.messages
+            try:
+                f.stream.close()
+            except OSError:
+                pass
+
+    def _resume(self) -> bool:
+        """While paused: once space is back, recover cut files and open a new one."""
+        now = self._clock()
+        if now < self._retry_at:
+            return False
+        self._retry_at = now + RETRY_S
+        try:
+            if shutil.disk_usage(self._dir).free < MIN_FREE_BYTES:
+                return False
+            self._recover_cut_files()
+            self._open_new()
+        except OSError as exc:
+            with self._lock:
+                self._stats.last_error = f"cannot resume in {self._dir}: {_describe(exc)}"
+            return False
+        with self._lock:
+            self._stats.paused = False
+        log.warning("recorder: space is back; recording resumed in %s", self._file.path.name
+                    if self._file else "?")
+        return True
+
+    def _recover_cut_files(self) -> None:
+        from appliance.recording.recovery import recover_unfinished
+
+        reports = recover_unfinished(self._dir)
+        lost = sum(self._cut.pop(r.source, r.messages_kept) - r.messages_kept for r in reports)
+        with self._lock:
+            self._stats.files_recovered += len(reports)
+            self._stats.messages_lost_in_cut_files += lost
 
     # ------------------------------------------------------------------ files
 
-    def _new_path(self) -> Path:
-        while True:
-            now = datetime.now(timezone.utc)
-            stamp = now.strftime("%Y%m%dT%H%M%S") + f"{now.microsecond // 1000:03d}Z"
-            self._sequence += 1
-            path = self._dir / f"ogiflow-{stamp}-{self._sequence:04d}.mcap.active"
-            if not path.exists() and not path.with_name(path.name[:-7]).exists():
-                return path
-
     def _open_new(self) -> None:
-        path = self._new_path()
-        self._file = _OpenFile(path, self._rc, self._metadata, self._sequence)
+        while True:
+            self._sequence += 1
+            path = new_path(self._dir, self._sequence)
+            if not path.exists() and not path.with_name(path.name[:-7]).exists():
+                break
+        self._file = OpenFile(path, self._rc, self._metadata, self._sequence, self._clock)
         with self._lock:
             self._stats.current_file = str(path)
         log.info("recording to %s", path)
@@ -446,17 +384,6 @@ class Recorder:
             self._stats.current_file = ""
         log.info("closed %s (%d messages, %.1f MB)", final.name, f.messages, size / 1e6)
 
-    def _abandon_file(self) -> None:
-        """After a write error: drop the broken file handle (left as .active for recovery)."""
-        f = self._file
-        self._file = None
-        self._retry_at = time.monotonic() + 1.0
-        if f is not None:
-            try:
-                f.stream.close()
-            except OSError:
-                pass
-
     def _enforce_quota(self) -> None:
         if self._rc.quota_gb is None:
             return
@@ -470,7 +397,7 @@ class Recorder:
             try:
                 oldest.unlink()
             except OSError as exc:
-                self._error(f"quota: cannot delete {oldest.name}: {exc}")
+                log.error("recorder: quota: cannot delete %s: %s", oldest.name, exc)
                 break
             total -= size
             with self._lock:
@@ -478,15 +405,7 @@ class Recorder:
             log.warning("quota %.3g GB: deleted oldest recording %s (%.1f MB)",
                         self._rc.quota_gb, oldest.name, size / 1e6)
 
-    def _error(self, text: str) -> None:
-        with self._lock:
-            self._stats.write_errors += 1
-            self._stats.last_error = text
-        log.error("recorder: %s", text)
-        if self._on_error is not None:
-            self._on_error(text)
 
-
-def recorder_stats_dict(stats: RecorderStats) -> dict[str, Any]:
-    """Plain dict of a :class:`RecorderStats` (for health snapshots)."""
-    return dict(stats.__dict__)
+def _describe(exc: OSError) -> str:
+    name = errno.errorcode.get(exc.errno or 0, "")
+    return f"{exc} ({name})" if name and name not in str(exc) else str(exc)

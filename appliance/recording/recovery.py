@@ -11,6 +11,7 @@ writes them into a new file with a full summary (chunk and message indexes, stat
 from __future__ import annotations
 
 import io
+import os
 import struct
 import zlib
 from dataclasses import dataclass
@@ -55,6 +56,8 @@ class RecoveryReport:
     chunks_kept: int = 0
     messages_kept: int = 0
     chunks_corrupt: int = 0
+    #: Records outside chunks that could not be parsed (skipped).
+    records_corrupt: int = 0
     metadata_kept: int = 0
     attachments_kept: int = 0
     truncated_bytes: int = 0
@@ -66,7 +69,8 @@ class RecoveryReport:
             f"cut input, {self.truncated_bytes} trailing bytes dropped")
         return (f"{self.output}: kept {self.messages_kept} messages in {self.chunks_kept} "
                 f"chunks, {self.metadata_kept} metadata, {self.attachments_kept} attachments; "
-                f"{self.chunks_corrupt} corrupt chunks skipped; {state}")
+                f"{self.chunks_corrupt} corrupt chunks and {self.records_corrupt} corrupt "
+                f"records skipped; {state}")
 
 
 def default_output(source: Path) -> Path:
@@ -135,6 +139,40 @@ class _Rewriter:
         return 1
 
 
+#: What a record with flipped bits can raise while it is parsed or decompressed
+#: (RuntimeError: lz4.frame on corrupt data).
+_CORRUPT = (McapError, ValueError, zlib.error, struct.error, EOFError, zstandard.ZstdError,
+            RuntimeError, UnicodeDecodeError, IndexError, KeyError, OverflowError, MemoryError)
+
+
+def _copy(rw: _Rewriter, opcode: int, body: bytes, length: int,
+          report: RecoveryReport) -> None:
+    """Copy one data record into the rewriter (raises one of ``_CORRUPT`` when broken)."""
+    if opcode == Opcode.CHUNK:
+        chunk: Chunk = _parse(Chunk, body)  # type: ignore[assignment]
+        try:
+            records = breakup_chunk(chunk, validate_crc=True)
+        except _CORRUPT:
+            report.chunks_corrupt += 1
+            return
+        report.chunks_kept += 1
+        for rec in records:
+            report.messages_kept += rw.add(rec)
+    elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
+        rtype = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
+                 Opcode.MESSAGE: Message}[opcode]
+        report.messages_kept += rw.add(_parse(rtype, body, length))
+    elif opcode == Opcode.METADATA:
+        md: Metadata = _parse(Metadata, body)  # type: ignore[assignment]
+        rw.writer.add_metadata(md.name, dict(md.metadata))
+        report.metadata_kept += 1
+    elif opcode == Opcode.ATTACHMENT:
+        at: Attachment = _parse(Attachment, body)  # type: ignore[assignment]
+        rw.writer.add_attachment(at.create_time, at.log_time, at.name, at.media_type,
+                                 at.data)
+        report.attachments_kept += 1
+
+
 def recover(source: str | Path, output: str | Path | None = None, *,
             overwrite: bool = False) -> RecoveryReport:
     """Rewrite ``source`` (possibly cut) into a valid indexed MCAP file ``output``.
@@ -174,50 +212,34 @@ def recover(source: str | Path, output: str | Path | None = None, *,
                 rw: _Rewriter | None = None
                 header: Header | None = None
                 compression = CompressionType.ZSTD
+                size = os.fstat(fin.fileno()).st_size
                 while True:
                     head = fin.read(_RECORD_HEAD.size)
                     if len(head) < _RECORD_HEAD.size:
                         report.truncated_bytes += len(head)
                         break
                     opcode, length = _RECORD_HEAD.unpack(head)
-                    body = fin.read(length)
-                    if len(body) < length:
-                        report.truncated_bytes += len(head) + len(body)
+                    if length > size - fin.tell():  # cut, or a corrupt length field:
+                        # never allocate what the file cannot hold
+                        report.truncated_bytes += size - fin.tell() + len(head)
                         break
+                    body = fin.read(length)
                     if opcode in (Opcode.DATA_END, Opcode.FOOTER):
                         report.input_was_complete = True
                         break
                     if opcode == Opcode.HEADER:
-                        header = _parse(Header, body)  # type: ignore[assignment]
+                        try:
+                            header = _parse(Header, body)  # type: ignore[assignment]
+                        except _CORRUPT:
+                            report.records_corrupt += 1
                         continue
                     if rw is None:
                         rw = _Rewriter(fout, compression)
                         rw.start(header)
-                    if opcode == Opcode.CHUNK:
-                        chunk: Chunk = _parse(Chunk, body)  # type: ignore[assignment]
-                        try:
-                            records = breakup_chunk(chunk, validate_crc=True)
-                        except (McapError, ValueError, zlib.error, struct.error, EOFError,
-                                zstandard.ZstdError, RuntimeError):
-                            # RuntimeError: what lz4.frame raises on corrupt data.
-                            report.chunks_corrupt += 1
-                            continue
-                        report.chunks_kept += 1
-                        for rec in records:
-                            report.messages_kept += rw.add(rec)
-                    elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
-                        rtype = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
-                                 Opcode.MESSAGE: Message}[opcode]
-                        report.messages_kept += rw.add(_parse(rtype, body, length))
-                    elif opcode == Opcode.METADATA:
-                        md: Metadata = _parse(Metadata, body)  # type: ignore[assignment]
-                        rw.writer.add_metadata(md.name, dict(md.metadata))
-                        report.metadata_kept += 1
-                    elif opcode == Opcode.ATTACHMENT:
-                        at: Attachment = _parse(Attachment, body)  # type: ignore[assignment]
-                        rw.writer.add_attachment(at.create_time, at.log_time, at.name,
-                                                 at.media_type, at.data)
-                        report.attachments_kept += 1
+                    try:
+                        _copy(rw, opcode, body, length, report)
+                    except _CORRUPT:
+                        report.records_corrupt += 1
                     # Indexes and other records are rebuilt by the writer or not needed.
                 if rw is None:
                     rw = _Rewriter(fout, compression)

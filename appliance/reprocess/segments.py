@@ -169,6 +169,7 @@ def process_into(
     live: Any = None,
     pace: bool = False,
     on_triple: Callable[[SegmentReport], None] | None = None,
+    keep_summaries: bool = False,
 ) -> tuple[SegmentReport, Any]:
     """Run ``segments`` of ``rec`` and publish into ``sink`` as the appliance would.
 
@@ -176,7 +177,8 @@ def process_into(
     wind in the camera frame (all of the file's samples, so every segment interpolates the
     same wind) and calls :func:`run_segments`. ``copy_wind`` also copies the raw wind
     samples into ``sink`` first (a whole-file replay; reprocess copies them once, when
-    merging). Returns the report and the publisher (its ``truth_log`` holds every summary).
+    merging). Returns the report and the publisher (with ``keep_summaries`` its ``summaries``
+    hold every summary).
     """
     from appliance.reprocess.source import read_wind, wind_history
     from appliance.runtime.publishing import ResultPublisher
@@ -184,7 +186,8 @@ def process_into(
     wind = read_wind(rec.path)
     if copy_wind:
         sink.record_wind(wind, rec.wall_offset_ns)
-    publisher = ResultPublisher(sink, live, rec.wall_ns, fields_every)
+    publisher = ResultPublisher(sink, live, rec.wall_ns, fields_every,
+                                keep_summaries=keep_summaries)
     history = wind_history(rec, wind)
     if history is not None:
         publisher.wind_at = history.at

@@ -18,7 +18,7 @@ from typing import Any
 from mcap.writer import CompressionType, Writer
 
 from appliance import __version__
-from appliance.recording.recorder import ChannelTable
+from appliance.recording.files import ChannelTable
 from appliance.recording.schemas import WIND_SAMPLE, MessageSchema, encode_json
 
 

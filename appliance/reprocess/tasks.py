@@ -68,8 +68,8 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     segment = Segment(index, first, stop)
     try:
         report, publisher = process_into(sink, rec, geometry, params, [segment],
-                                         fields_every=job.fields_every)
-        rows = [summary_row(s) for _t, _truth, s in publisher.truth_log]
+                                         fields_every=job.fields_every, keep_summaries=True)
+        rows = [summary_row(s) for s in publisher.summaries]
     except BaseException:
         sink.abort()
         raise

@@ -15,6 +15,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,34 @@ from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.stamping import SIDES, StereoStamper
 
 log = logging.getLogger("ogiflow")
+
+#: Reconnection back-off of a vanished camera, seconds (first try, cap): short, because
+#: every second spent waiting after the device is back is a second of lost frames.
+RECONNECT_BACKOFF_S = (0.25, 1.0)
+
+
+def _per_side() -> dict[str, int]:
+    return {s: 0 for s in SIDES}
+
+
+@dataclass
+class Counters:
+    """Counters shared by the daemon's threads (simple ints: the GIL makes += safe enough
+    for statistics; nothing depends on exact values across threads)."""
+
+    frames: dict[str, int] = field(default_factory=_per_side)
+    #: Frames the device numbered but never delivered (frame-id gaps, reconnections).
+    frames_lost: dict[str, int] = field(default_factory=_per_side)
+    unpaired: dict[str, int] = field(default_factory=_per_side)
+    frame_queue_drops: int = 0
+    camera_timeouts: int = 0
+    camera_reconnects: int = 0
+    pairs: int = 0
+    results: int = 0
+    result_errors: int = 0
+    skipped_pairs: int = 0
+    wind_samples: int = 0
+    worker_restarts: int = 0
 
 
 class Acquisition:
@@ -59,7 +88,8 @@ class Acquisition:
         self.publisher = publisher
         self.ring = ring
         self.watchdog = watchdog
-        self.unpaired = {s: 0 for s in SIDES}
+        self._last_frame_id: dict[str, int | None] = {s: None for s in SIDES}
+        self.anemometer: Any = None
         self._frame_q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=512)
         self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
             collections.OrderedDict())
@@ -81,7 +111,7 @@ class Acquisition:
         from drivers.camera import mcap_format
         from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
 
-        backoff = 0.5
+        backoff = RECONNECT_BACKOFF_S[0]
         stream = self.health.stream(f"cam/{side}")
         cache: dict[str, schemas.MessageSchema] = {}
         while not self.stop_event.is_set():
@@ -90,7 +120,7 @@ class Acquisition:
                 camera = self.make_camera(side)
                 camera.open()
                 camera.start()
-                backoff = 0.5
+                backoff = RECONNECT_BACKOFF_S[0]
                 while not self.stop_event.is_set():
                     try:
                         frame = camera.grab(timeout=0.5)
@@ -101,6 +131,7 @@ class Acquisition:
                     if self.watchdog is not None:
                         self.watchdog.frame_arrived()
                     self.counters.frames[side] += 1
+                    self._count_lost(side, frame)
                     if self.recorder is not None:
                         for m in mcap_format.frame_to_messages(side, frame,
                                                                self.wall_ns(frame.host_ns)):
@@ -124,7 +155,7 @@ class Acquisition:
                 self.counters.camera_reconnects += 1
                 log.warning("camera %s: %s; reconnecting in %.1f s", side, exc, backoff)
                 self.stop_event.wait(backoff)
-                backoff = min(backoff * 2, 10.0)
+                backoff = min(backoff * 2, RECONNECT_BACKOFF_S[1])
             finally:
                 if camera is not None:
                     try:
@@ -132,9 +163,20 @@ class Acquisition:
                     except (CameraError, OSError):
                         pass
 
+    def _count_lost(self, side: str, frame: Any) -> None:
+        """Frames lost before this one: the device's frame-id gap (it spans reconnections),
+        or what the back end reported when the device does not number its frames."""
+        last, fid = self._last_frame_id[side], frame.device_frame_id
+        if fid is not None and last is not None and fid > last:
+            self.counters.frames_lost[side] += fid - last - 1
+        elif fid is None:
+            self.counters.frames_lost[side] += frame.lost
+        self._last_frame_id[side] = fid
+
     def pairing_loop(self) -> None:
         """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
-        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz, self.cfg.pairing.tolerance_s)
+        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz,
+                                self.cfg.pairing.tolerance_s, self.cfg.pairing.max_delay_s)
         stream = self.health.stream("pairs")
         index = 0
         while True:
@@ -145,12 +187,14 @@ class Acquisition:
                     break
                 pairs = stamper.poll(time.monotonic_ns())
             else:
-                pairs = stamper.push(side, frame, time.monotonic_ns())
+                # "Now" is the frame's arrival, not this thread's clock: when this thread
+                # lags, the partner may already wait in the queue and must not be given up.
+                pairs = stamper.push(side, frame, frame.host_ns)
             for p in pairs:
                 self._write_pair(index, p)
                 stream.tick()
                 index += 1
-        self.unpaired = stamper.unpaired()
+            self.counters.unpaired = stamper.unpaired()
 
     def _write_pair(self, index: int, p: Any) -> None:
         left, right = p.left, p.right
@@ -164,6 +208,26 @@ class Acquisition:
                 self._pair_frame_ids.popitem(last=False)
         self.publisher.record_pair(index, p)
 
+    def start_anemometer(self, history: Any, mounting: Any) -> Any:
+        """Create the anemometer back end and start its reader thread (returned)."""
+        from drivers.anemometer.reader import AnemometerReader
+        from drivers.anemometer.registry import make_anemometer
+
+        a = self.cfg.anemometer
+        options = self.site.anemometer_options()
+        if a.backend == "simulated":
+            # The simulator's log of sent frames is for tests that compare; in a run it
+            # would grow the daemon by ~17 MB/h until it trims at 200 000 frames.
+            options.setdefault("history", 1000)
+        if a.backend == "serial":
+            options.setdefault("protocol", a.protocol)
+            options.setdefault("url", a.port)
+            options.setdefault("baudrate", a.baud)
+            options.setdefault("parity", a.parity)
+        self.anemometer = make_anemometer(a.backend, **options)
+        return AnemometerReader(self.anemometer, on_sample=self.on_wind, history=history,
+                                mounting=mounting).start()
+
     def on_wind(self, sample: Any) -> None:
         """Reader-thread callback: record the raw sample (never blocks)."""
         self.counters.wind_samples += 1
@@ -171,19 +235,17 @@ class Acquisition:
         self.publisher.record_json("/wind/raw", schemas.WIND_SAMPLE, {
             "t_mono_ns": sample.host_ns, "t_wall_ns": self.wall_ns(sample.host_ns),
             "t_device": sample.counter, "sensor": self.cfg.anemometer.protocol,
-            "u": _finite(sample.u), "v": _finite(sample.v), "w": _finite(sample.w),
+            "u": _finite_or_none(sample.u), "v": _finite_or_none(sample.v),
+            "w": _finite_or_none(sample.w),
             "speed_of_sound_m_s": _finite_or_none(sample.speed_of_sound),
             "sonic_temperature_c": _finite_or_none(sample.sonic_temperature),
             "status": sample.status_code, "valid": bool(sample.valid),
         }, sample.host_ns)
 
 
-def _finite(x: Any) -> float:
-    v = float(x)
-    return v if np.isfinite(v) else 0.0
-
-
 def _finite_or_none(x: Any) -> float | None:
+    """A number for JSON; None (null) for a missing or non-finite one. A failed axis or a
+    2-D sensor's missing w must not read as a real 0.0 m/s calm."""
     if x is None:
         return None
     v = float(x)

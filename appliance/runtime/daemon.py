@@ -28,17 +28,17 @@ import logging
 import multiprocessing as mp
 import queue
 import signal
-import sys
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from appliance.config import Config
-from appliance.exitcodes import EXIT_OK
+from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
+from appliance.runtime.acquisition import Counters
+from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
@@ -48,22 +48,6 @@ from processing.chain import ChainParameters, StereoGeometry
 log = logging.getLogger("ogiflow")
 
 SIDES = ("left", "right")
-
-
-@dataclass
-class _Counters:
-    """Counters shared by the daemon's threads (simple ints: the GIL makes += safe enough
-    for statistics; nothing depends on exact values across threads)."""
-
-    frames: dict[str, int] = field(default_factory=lambda: {s: 0 for s in SIDES})
-    frame_queue_drops: int = 0
-    camera_timeouts: int = 0
-    camera_reconnects: int = 0
-    pairs: int = 0
-    results: int = 0
-    result_errors: int = 0
-    skipped_pairs: int = 0
-    wind_samples: int = 0
 
 
 class Appliance:
@@ -85,7 +69,7 @@ class Appliance:
         self.duration_s = duration_s
         self.announce = announce
         self.stop_event = threading.Event()
-        self.counters = _Counters()
+        self.counters = Counters()
         self._threads: list[threading.Thread] = []
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
         self.recorder: Any = None
@@ -96,9 +80,13 @@ class Appliance:
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         self.live_url: str | None = None
+        #: Faults that end the run with exit code 1 (a thread died, files not finalised).
+        self.failures: list[str] = []
+        self._workers: list[Any] = []
         self._keep_up = KeepUpCheck()
-        self._peak_rss_mb: list[float | None] = []
-        self._t_start = time.monotonic()
+        #: Peak resident memory of the daemon and each worker, MB (filled at shutdown).
+        self.peak_rss_mb: list[float | None] = []
+        self.t_start = time.monotonic()
 
     # ------------------------------------------------------------------ helpers
 
@@ -184,11 +172,14 @@ class Appliance:
             stack.callback(self._begin_shutdown)
             self._install_signals()
             self.notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
-            self._announce_start()
+            if self.announce:
+                announce_start(self)
             self._wait()
         if self.announce:
-            self._announce_end()
-        return EXIT_OK
+            announce_end(self)
+        for text in self.failures:
+            log.error("run failed: %s", text)
+        return EXIT_FAILURE if self.failures else EXIT_OK
 
     def _prepare(self) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
@@ -203,7 +194,10 @@ class Appliance:
         period = watchdog_period_s() if cfg.health.watchdog else None
         self.watchdog = Watchdog(self.notifier, period, cfg.health.stall_s) if period else None
         self._mounting = Mounting.from_config(cfg.anemometer.protocol, cfg.anemometer.mounting)
-        self.history = WindHistory()
+        # Results need the wind of their pair's time, seconds to a minute back: 6000 samples
+        # (5 min at 20 Hz) is plenty and keeps the history's memory flat (~1 MB) within
+        # minutes; the default 20 000 (40 000 between trims) took 33 min to level off.
+        self.history = WindHistory(capacity=6000)
         self.site = SimulatedSite(cfg, self._mounting.rotation)
         self.site.prepare()
         self.geometry = self._geometry()
@@ -228,14 +222,15 @@ class Appliance:
         assert self.geometry is not None
         metadata.update(processing_metadata(self.geometry, self.params))
         self.recorder = Recorder(cfg.recording, metadata).start()
-        stack.callback(self.recorder.close, timeout=5.0)
+        stack.callback(self._close_recorder)
 
     def _start_live(self, stack: contextlib.ExitStack) -> None:
         if self.cfg.live.mode == "off":
             return
         from appliance.live.view import LiveView
 
-        self.live = LiveView(self.cfg.live).start()
+        self.live = LiveView(self.cfg.live,
+                             server_memory_limit=f"{self.cfg.live.server_memory_mb}MB").start()
         stack.callback(self.live.close)
         self.live_url = getattr(self.live, "url", None)
 
@@ -248,22 +243,34 @@ class Appliance:
         w, h = self.geometry.image_size
         self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
-        ctx = mp.get_context("spawn")
-        results = ctx.Queue(maxsize=64)
-        stop_workers = ctx.Event()
-        workers: list[Any] = []
-        stack.callback(self._stop_processing, stop_workers, workers)
+        self._mp = mp.get_context("spawn")
+        self._results = self._mp.Queue(maxsize=64)
+        self._stop_workers = self._mp.Event()
+        stack.callback(self._stop_processing)
         if cfg.processing.enabled:
             for i in range(cfg.processing.workers):
-                p = ctx.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                                args=(i, self.ring.handle(), results, stop_workers,
-                                      self.geometry, self.params, cfg.processing.workers),
-                                daemon=True)
-                p.start()
-                workers.append(p)
+                self._workers.append(self._start_worker(i))
         else:
             self._workers_done.set()
-        self._spawn(self._results_loop, "results", results)
+        self._spawn(self._results_loop, "results", self._results)
+
+    def _start_worker(self, i: int) -> Any:
+        p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                             args=(i, self.ring.handle(), self._results, self._stop_workers,
+                                   self.geometry, self.params, self.cfg.processing.workers),
+                             daemon=True)
+        p.start()
+        return p
+
+    def _supervise_workers(self) -> None:
+        """Start a new worker in place of one that died (OOM killer, a crash in native code):
+        processing resumes with the next window of the ring."""
+        for i, p in enumerate(self._workers):
+            if p.is_alive() or self.stop_event.is_set():
+                continue
+            log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
+            self.counters.worker_restarts += 1
+            self._workers[i] = self._start_worker(i)
 
     def _make_monitor(self) -> Any:
         """Leak events, emission-rate window and the operator's status (runtime.monitor)."""
@@ -309,7 +316,7 @@ class Appliance:
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
-        reader = self._start_anemometer()
+        reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
         for side in SIDES:
@@ -327,10 +334,14 @@ class Appliance:
             if t.name.startswith("camera") or t.name == "pairing":
                 t.join(timeout=2.0)
 
-    def _stop_processing(self, stop_workers: Any, workers: list[Any]) -> None:
-        self._peak_rss_mb = [peak_rss_mb(None), *(peak_rss_mb(p.pid) for p in workers)]
-        stop_workers.set()
-        for p in workers:
+    def _close_recorder(self) -> None:
+        if not self.recorder.close(timeout=5.0):
+            self.failures.append("the recorder did not finish its files within 5 s")
+
+    def _stop_processing(self) -> None:
+        self.peak_rss_mb = [peak_rss_mb(None), *(peak_rss_mb(p.pid) for p in self._workers)]
+        self._stop_workers.set()
+        for p in self._workers:
             p.join(timeout=2.0)
             if p.is_alive():
                 p.terminate()
@@ -351,53 +362,32 @@ class Appliance:
         for sig, handler in self._previous_handlers.items():
             signal.signal(sig, handler)
 
-    # ------------------------------------------------------------------ waiting, banner
+    # ------------------------------------------------------------------ waiting
 
     def _wait(self) -> None:
         t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
+            self._supervise_workers()
             if t_end is not None and time.monotonic() >= t_end:
                 break
 
-    def _announce_start(self) -> None:
-        if not self.announce:
-            return
-        where = self.live_url or "off"
-        rec = str(self.cfg.recording.dir) if self.cfg.recording.enabled else "off"
-        sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
-                         f"(Ctrl-C or SIGTERM stops)\n")
-
-    def _announce_end(self) -> None:
-        c = self.counters
-        elapsed = max(time.monotonic() - self._t_start, 1e-9)
-        share = c.results / max(c.results + c.skipped_pairs, 1)
-        sys.stderr.write(
-            f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
-            f"pairs {c.pairs}, processed {c.results} ({c.results / elapsed:.1f}/s, "
-            f"{100 * share:.0f} %), skipped {c.skipped_pairs} "
-            f"({c.skipped_pairs / elapsed:.1f}/s), failed {c.result_errors}, "
-            f"wind samples {c.wind_samples}\n")
-        if self._peak_rss_mb:
-            names = ["daemon", *(f"worker {i}" for i in range(len(self._peak_rss_mb) - 1))]
-            sys.stderr.write("ogiflow: peak RSS (MB): " + ", ".join(
-                f"{n} {'n/a' if mb is None else f'{mb:.0f}'}"
-                for n, mb in zip(names, self._peak_rss_mb, strict=True)) + "\n")
-        comparison = self.publisher.truth_comparison()
-        if comparison is not None:
-            sys.stderr.write(
-                "ogiflow: simulated ground truth vs measured mean gas velocity over "
-                f"{comparison['frames']} valid frames: truth "
-                f"{_fmt(comparison['truth_m_s'])} m/s, measured "
-                f"{_fmt(comparison['measured_m_s'])} m/s, magnitude error "
-                f"{comparison['magnitude_error_pct']:.1f} %, direction error "
-                f"{comparison['direction_error_deg']:.1f} deg\n")
-
     def _spawn(self, target: Any, name: str, *args: Any) -> None:
-        t = threading.Thread(target=target, name=name, args=args, daemon=True)
+        t = threading.Thread(target=self._guarded, name=name, args=(target, name, *args),
+                             daemon=True)
         t.start()
         self._threads.append(t)
+
+    def _guarded(self, target: Any, name: str, *args: Any) -> None:
+        """Run a thread's loop; an exception escaping it stops the run with exit code 1
+        (systemd restarts the service) instead of leaving a half-working appliance."""
+        try:
+            target(*args)
+        except BaseException as exc:
+            log.exception("thread %s died", name)
+            self.failures.append(f"thread {name} died: {type(exc).__name__}: {exc}")
+            self.stop_event.set()
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         log.info("signal %d: shutting down", signum)
@@ -407,40 +397,25 @@ class Appliance:
         c = self.counters
         out = {
             "frames_left": c.frames["left"], "frames_right": c.frames["right"],
+            "frames_lost_left": c.frames_lost["left"],
+            "frames_lost_right": c.frames_lost["right"],
+            "unpaired_left": c.unpaired["left"], "unpaired_right": c.unpaired["right"],
+            "worker_restarts": c.worker_restarts,
             "pairs": c.pairs, "results": c.results, "result_errors": c.result_errors,
             "skipped_pairs": c.skipped_pairs, "frame_queue_drops": c.frame_queue_drops,
             "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
             "wind_samples": c.wind_samples,
         }
         if self.recorder is not None:
-            out["recorder_drops"] = int(self.recorder.stats().messages_dropped)
+            rs = self.recorder.stats()
+            out["recorder_drops"] = int(rs.messages_dropped)
+            out["recorder_write_errors"] = rs.write_errors
+            out["recording_paused"] = int(rs.paused)
         if self.live is not None:
             out["live_drops"] = int(self.live.stats().dropped)
         if self.ring is not None:
             out["ring_overwrites"] = int(self.ring.stats().overwrites)
-        if getattr(self, "_anemometer", None) is not None:
-            counts = self._anemometer.counts
+        if getattr(self.acquisition, "anemometer", None) is not None:
+            counts = self.acquisition.anemometer.counts
             out["serial_errors"] = int(counts.checksum_failures + counts.malformed)
         return out
-
-    # ------------------------------------------------------------------ anemometer
-
-    def _start_anemometer(self) -> Any:
-        from drivers.anemometer.reader import AnemometerReader
-        from drivers.anemometer.registry import make_anemometer
-
-        a = self.cfg.anemometer
-        assert self.site is not None
-        options = self.site.anemometer_options()
-        if a.backend == "serial":
-            options.setdefault("protocol", a.protocol)
-            options.setdefault("url", a.port)
-            options.setdefault("baudrate", a.baud)
-            options.setdefault("parity", a.parity)
-        self._anemometer = make_anemometer(a.backend, **options)
-        return AnemometerReader(self._anemometer, on_sample=self.acquisition.on_wind,
-                                history=self.history, mounting=self._mounting).start()
-
-
-def _fmt(v: Any) -> str:
-    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"

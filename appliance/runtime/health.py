@@ -29,6 +29,7 @@ __all__ = [
     "LatencyStat",
     "StreamCounter",
     "StreamStats",
+    "alarms",
     "disk_free_source",
     "live_sink",
     "log_sink",
@@ -37,6 +38,9 @@ __all__ = [
 ]
 
 log = logging.getLogger("ogiflow.health")
+
+#: A camera stream without frames for longer than this is named in the status line, s.
+SILENT_S = 1.0
 
 
 class StreamCounter:
@@ -141,8 +145,9 @@ class HealthMonitor:
     """Registry of the appliance's health numbers; :meth:`snapshot` reads them all."""
 
     def __init__(self, stall_s: float = 10.0, frame_streams: tuple[str, ...] = (
-            "cam/left", "cam/right")) -> None:
-        self._start = time.monotonic()
+            "cam/left", "cam/right"), clock: Callable[[], float] = time.monotonic) -> None:
+        self._clock = clock  # monotonic seconds (tests inject one)
+        self._start = clock()
         self.stall_s = stall_s
         self.frame_streams = frame_streams
         self._streams: dict[str, StreamCounter] = {}
@@ -183,7 +188,7 @@ class HealthMonitor:
 
     def snapshot(self) -> HealthSnapshot:
         """Read everything; rates and latency means are over the time since the last call."""
-        now = time.monotonic()
+        now = self._clock()
         snap = HealthSnapshot(t_mono_ns=time.monotonic_ns(), t_wall_ns=time.time_ns(),
                               uptime_s=now - self._start)
         with self._lock:
@@ -212,20 +217,32 @@ class HealthMonitor:
         return snap
 
 
+def alarms(snap: HealthSnapshot) -> list[str]:
+    """What is wrong right now, most serious first (empty when all is well)."""
+    out = []
+    if snap.stalled:
+        out.append("STALLED: no frames")
+    if snap.counters.get("recording_paused"):
+        out.append("RECORDING PAUSED (write error; see log)")
+    for name, s in sorted(snap.streams.items()):
+        if name.startswith("cam/") and s.last_age_s is not None and s.last_age_s > SILENT_S:
+            out.append(f"{name} SILENT for {s.last_age_s:.0f} s")
+    return out
+
+
 def status_line(snap: HealthSnapshot) -> str:
-    """One short human line (systemd STATUS=, journal)."""
-    parts = []
+    """One short human line (systemd STATUS=, journal): alarms first, then rates."""
+    parts = alarms(snap)
     for name, s in sorted(snap.streams.items()):
         drops = f" ({s.drops} lost)" if s.drops else ""
         parts.append(f"{name} {s.rate_hz:.1f}/s{drops}")
-    for key in ("skipped_pairs", "recorder_drops", "live_drops", "serial_errors"):
+    for key in ("skipped_pairs", "recorder_drops", "live_drops", "serial_errors",
+                "frames_lost_left", "frames_lost_right", "worker_restarts"):
         if snap.counters.get(key):
             parts.append(f"{key} {snap.counters[key]}")
     free = snap.gauges.get("disk_free_gb")
     if free is not None:
         parts.append(f"disk {free:.1f} GB free")
-    if snap.stalled:
-        parts.insert(0, "STALLED: no frames")
     return ", ".join(parts) or "starting"
 
 
@@ -321,14 +338,17 @@ def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
 
 def log_sink(logger: logging.Logger = log, every: int = 10) -> Callable[[HealthSnapshot], None]:
     """Sink writing :func:`status_line` to the log (journald) every ``every`` snapshots, and at
-    once whenever the stall state changes."""
+    once whenever :func:`alarms` starts or stops having something to say."""
     state = {"n": 0, "stalled": False}
 
     def sink(snap: HealthSnapshot) -> None:
-        changed = snap.stalled != state["stalled"]
-        state["stalled"] = snap.stalled
+        line = status_line(snap)
+        # At once when something starts or stops being wrong (an outage, a paused recording).
+        alarm = bool(alarms(snap))
+        changed = alarm != state["stalled"]
+        state["stalled"] = alarm
         if changed or state["n"] % every == 0:
-            (logger.warning if snap.stalled else logger.info)("health: %s", status_line(snap))
+            (logger.warning if alarm else logger.info)("health: %s", line)
         state["n"] += 1
 
     return sink

@@ -37,12 +37,14 @@ class ResultPublisher:
         Pair index of t0 -> simulator ground-truth mean velocity (simulated runs).
     monitor : LeakMonitor, optional
         Gets every result for the leak events, the rate window and the operator's status.
+    keep_summaries : bool
+        Keep every published summary in :attr:`summaries` (bounded runs only).
     """
 
     def __init__(self, recorder: Any, live: Any, wall_ns: Callable[[int], int],
                  fields_every: int, *, wind_at: Callable[[int], Any] | None = None,
                  truth_for: Callable[[int], np.ndarray | None] | None = None,
-                 monitor: Any = None) -> None:
+                 monitor: Any = None, keep_summaries: bool = False) -> None:
         self.recorder = recorder
         self.live = live
         self.wall_ns = wall_ns
@@ -52,8 +54,14 @@ class ResultPublisher:
         self.monitor = monitor
         self.published = 0
         self.errors = 0
-        #: (t1, truth or None, summary dict) of every published result.
-        self.truth_log: list[tuple[int, np.ndarray | None, dict[str, Any]]] = []
+        # Running sums for truth_comparison(): a list of every result would grow the
+        # daemon without bound (about 65 MB/h at the default configuration).
+        self._truth_n = 0
+        self._truth_sum = np.zeros(3)
+        self._measured_sum = np.zeros(3)
+        #: Every published summary, when asked for (a reprocessing segment collects its
+        #: rows; the daemon never keeps them: unbounded growth).
+        self.summaries: list[dict[str, Any]] | None = [] if keep_summaries else None
         self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ recording
@@ -107,7 +115,9 @@ class ResultPublisher:
         truth = None if self.truth_for is None else self.truth_for(res.pair_indices[0])
         with self._lock:
             self.published += 1
-            self.truth_log.append((t1, truth, summary))
+            self._add_truth(truth, summary)
+            if self.summaries is not None:
+                self.summaries.append(summary)
             record_fields = (self.published % self.fields_every == 0 if fields is None
                              else fields)
         if self.recorder is not None and record_fields:
@@ -189,22 +199,35 @@ class ResultPublisher:
 
     # ------------------------------------------------------------------ ground truth
 
+    def _add_truth(self, truth: np.ndarray | None, summary: dict[str, Any]) -> None:
+        """Count one result towards :meth:`truth_comparison` (call with the lock held)."""
+        measured = summary["mean_velocity_m_s"]
+        if truth is None or not summary["valid"] or measured is None:
+            return
+        m = np.asarray(measured, dtype=np.float64)
+        t = np.asarray(truth, dtype=np.float64)
+        if m.shape != (3,) or t.shape != (3,) or not (np.isfinite(m).all()
+                                                       and np.isfinite(t).all()):
+            return
+        self._truth_n += 1
+        self._truth_sum += t
+        self._measured_sum += m
+
     def truth_comparison(self) -> dict[str, Any] | None:
         """Mean measured vs mean true gas velocity over the valid frames of a simulated run.
 
         Only frames with a valid summary and a ground truth (not wrapping the scene loop)
         count; None when there is none.
         """
-        pairs = [(np.asarray(s["mean_velocity_m_s"], dtype=np.float64), truth)
-                 for _t, truth, s in self.truth_log
-                 if truth is not None and s["valid"] and s["mean_velocity_m_s"] is not None]
-        if not pairs:
-            return None
-        measured = np.mean([m for m, _ in pairs], axis=0)
-        truth = np.mean([t for _, t in pairs], axis=0)
+        with self._lock:
+            n = self._truth_n
+            if n == 0:
+                return None
+            measured = self._measured_sum / n
+            truth = self._truth_sum / n
         nt, nm = float(np.linalg.norm(truth)), float(np.linalg.norm(measured))
         cos = float(np.clip(measured @ truth / (nm * nt), -1, 1)) if nm > 0 and nt > 0 else 1.0
-        return {"frames": len(pairs), "truth_m_s": truth.tolist(),
+        return {"frames": n, "truth_m_s": truth.tolist(),
                 "measured_m_s": measured.tolist(),
                 "magnitude_error_pct": 100.0 * abs(nm - nt) / nt if nt > 0 else float("nan"),
                 "direction_error_deg": float(np.degrees(np.arccos(cos)))}

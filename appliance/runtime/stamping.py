@@ -24,21 +24,32 @@ class StereoStamper:
         Nominal frame rate of both cameras.
     tolerance_s : float or None
         Pairing tolerance; None = half a frame period.
+    max_delay_s : float
+        How long a frame waits for its partner before it is released unpaired.
     """
 
-    def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None) -> None:
+    def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None,
+                 max_delay_s: float = 0.2) -> None:
         period = int(1e9 / frame_rate_hz)
         self.pairer: StereoPairer[Any] = StereoPairer(
-            period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9))
+            period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9),
+            max_delay_ns=int(max_delay_s * 1e9))
         self.clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
 
     def push(self, side: str, frame: Any, now_ns: int | None) -> list[Any]:
         """Stamp one frame (capture time from its clock model) and return new pairs."""
         t = self.clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
-        return self.pairer.push(side, t, frame, now_ns=now_ns)
+        return self._forget_unpaired(self.pairer.push(side, t, frame, now_ns=now_ns))
 
     def poll(self, now_ns: int) -> list[Any]:
-        return self.pairer.poll(now_ns)
+        return self._forget_unpaired(self.pairer.poll(now_ns))
+
+    def _forget_unpaired(self, pairs: list[Any]) -> list[Any]:
+        # The pairer keeps released frames (images included) until taken; nobody here needs
+        # them beyond the counts in pairer.stats, and keeping them grows memory by a whole
+        # camera's frame rate while the other camera is out.
+        self.pairer.take_unpaired()
+        return pairs
 
     def flush(self) -> list[Any]:
         return self.pairer.flush()

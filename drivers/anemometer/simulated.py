@@ -325,6 +325,8 @@ class SimulatedAnemometer(Anemometer):
         Symlink to the pty (default: a temporary path).
     protocol : str
         What the simulated sensor speaks (:data:`ENCODERS`; default Gill UVW).
+    history : int
+        Sent frames the sensor remembers for :meth:`SimulatedSensor.sent` (tests).
     **serial_options
         Passed to :class:`~drivers.anemometer.serial_transport.SerialAnemometer`
         (``reopen_after_s``, ``gill_setup``, ...).
@@ -340,6 +342,7 @@ class SimulatedAnemometer(Anemometer):
         seed: int = 0,
         link_path: str | None = None,
         protocol: str = "gill",
+        history: int = 100_000,
         **serial_options: Any,
     ) -> None:
         from drivers.anemometer.serial_transport import SerialAnemometer
@@ -350,6 +353,7 @@ class SimulatedAnemometer(Anemometer):
             WindModel(wind, mean_wind, seed=seed),
             protocol=protocol,
             link_path=link_path,
+            history=history,
         ).start()
         try:
             self.serial = SerialAnemometer(protocol, self.sensor.link_path, **serial_options)

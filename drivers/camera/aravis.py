@@ -203,24 +203,22 @@ class AravisCamera(Camera):
             if d["serial"] == self.serial:
                 return d["id"]
         found = ", ".join(f"{d['serial']}@{d['address']}" for d in devices) or "none"
-        raise CameraDisconnected(
-            f"{self.label}: no camera with serial {self.serial!r} (found: {found})"
-        )
+        raise CameraDisconnected(f"{self.label}: no camera with serial {self.serial!r} "
+                                 f"(found: {found})")
 
     def _connect(self) -> None:
         """Open and configure the device (not streaming)."""
         # Aravis' device list and discovery are process-global: one open at a time.
         with _discovery_lock:
-            self._connect_locked()
+            device_id = self._device_id()
+            try:
+                cam = Aravis.Camera.new(device_id)
+            except GLib.Error as exc:
+                raise CameraDisconnected(f"{self.label}: cannot open {device_id!r}: "
+                                         f"{exc.message}") from None
+            self._configure(cam, device_id)
 
-    def _connect_locked(self) -> None:
-        device_id = self._device_id()
-        try:
-            cam = Aravis.Camera.new(device_id)
-        except GLib.Error as exc:
-            raise CameraDisconnected(
-                f"{self.label}: cannot open {device_id!r}: {exc.message}"
-            ) from None
+    def _configure(self, cam: Aravis.Camera, device_id: str) -> None:
         try:
             available = cam.dup_available_pixel_formats_as_strings() or []
             if self.pixel_format not in available:
@@ -231,12 +229,8 @@ class AravisCamera(Camera):
             x, y, w, h = self.roi
             if any(v is not None for v in self.roi):
                 cx, cy, cw, ch = cam.get_region()
-                cam.set_region(
-                    cx if x is None else x,
-                    cy if y is None else y,
-                    cw if w is None else w,
-                    ch if h is None else h,
-                )
+                cam.set_region(cx if x is None else x, cy if y is None else y,
+                               cw if w is None else w, ch if h is None else h)
             cam.set_pixel_format_from_string(self.pixel_format)
             if self.fps is not None:
                 cam.set_frame_rate(float(self.fps))
@@ -252,9 +246,8 @@ class AravisCamera(Camera):
             except TypeError:  # signal absent in this build: the frame timeout still works
                 pass
         except GLib.Error as exc:
-            raise CameraError(
-                f"{self.label}: configuring {device_id!r} failed: {exc.message}"
-            ) from None
+            raise CameraError(f"{self.label}: configuring {device_id!r} failed: "
+                              f"{exc.message}") from None
         self._cam = cam
         self._control_lost.clear()
         self._connected = True
@@ -273,31 +266,30 @@ class AravisCamera(Camera):
                 stream.push_buffer(Aravis.Buffer.new_allocate(payload))
             self._cam.start_acquisition()
         except GLib.Error as exc:
-            raise CameraDisconnected(
-                f"{self.label}: cannot start streaming: {exc.message}"
-            ) from None
+            raise CameraDisconnected(f"{self.label}: cannot start streaming: "
+                                     f"{exc.message}") from None
         self._stream = stream
         self._last_frame_mono = time.monotonic()
         self._last_frame_id = None
 
-    def _drop(self) -> None:
-        """Forget the device objects (after a loss, or on close)."""
-        if self._cam is not None and self._streaming:
+    def _stop_acquisition(self) -> None:
+        if self._cam is not None:
             try:
                 self._cam.stop_acquisition()
             except GLib.Error as exc:  # device already gone: nothing to stop
                 log.debug("%s: stop_acquisition: %s", self.label, exc.message)
+
+    def _drop(self) -> None:
+        """Forget the device objects (after a loss, or on close)."""
+        if self._streaming:
+            self._stop_acquisition()
         self._stream = None
         self._cam = None
         self._connected = False
 
     def _lost(self, why: str) -> CameraDisconnected:
-        log.warning(
-            "%s: camera lost (%s); reconnecting every %.1f s",
-            self.label,
-            why,
-            self.retry_interval_s,
-        )
+        log.warning("%s: camera lost (%s); reconnecting every %.1f s", self.label, why,
+                    self.retry_interval_s)
         self._drop()
         self.stats.disconnects += 1
         self._next_retry = time.monotonic()
@@ -371,13 +363,8 @@ class AravisCamera(Camera):
         data = buf.get_image_data()
         expected = w * h * self._dtype.itemsize
         if len(data) < expected:
-            log.warning(
-                "%s: frame %d has %d bytes, expected %d; dropped",
-                self.label,
-                frame_id,
-                len(data),
-                expected,
-            )
+            log.warning("%s: frame %d has %d bytes, expected %d; dropped", self.label,
+                        frame_id, len(data), expected)
             return None
         image = np.frombuffer(data, dtype=self._dtype.newbyteorder("<"), count=w * h)
         image = image.reshape(h, w).astype(self._dtype, copy=True)
@@ -410,11 +397,7 @@ class AravisCamera(Camera):
         return self._temps
 
     def _stop(self) -> None:
-        if self._cam is not None:
-            try:
-                self._cam.stop_acquisition()
-            except GLib.Error as exc:
-                log.debug("%s: stop_acquisition: %s", self.label, exc.message)
+        self._stop_acquisition()
         self._streaming = False
         self._stream = None
 

@@ -16,6 +16,11 @@ shared epoch):
 ``k``. The random draws depend only on ``seed`` and ``k`` (blocks of 1024 frames), so a run is
 reproducible and :meth:`TimingModel.capture_time_ns` gives the ground truth of any frame.
 
+Outage (fault injection, realtime only): with ``outage_after_s`` set, the camera vanishes
+that many seconds after the first ``open`` of a camera with the same label in this process,
+for ``outage_s`` seconds: ``grab`` raises :class:`CameraDisconnected` and ``open`` fails
+until it is back; frames exposed meanwhile are never delivered (the frame ids jump).
+
 With ``realtime=True`` (the daemon) ``grab`` sleeps until each arrival and stamps the frame
 with ``time.monotonic_ns()``; with ``realtime=False`` it returns at once and stamps the
 modelled arrival on a virtual timeline starting at ``epoch_ns`` (tests, benchmarks: ten
@@ -36,7 +41,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from drivers.camera.base import Camera, CameraTimeout, Capture, EndOfStream
+from drivers.camera.base import Camera, CameraDisconnected, CameraTimeout, Capture, EndOfStream
 from drivers.camera.sources import FrameSource, load_source
 
 log = logging.getLogger(__name__)
@@ -45,6 +50,9 @@ _BLOCK = 1024
 #: Shared epoch of realtime simulated cameras in this process, so a left and a right camera
 #: started at different moments still share one true timeline.
 _PROCESS_EPOCH_NS = time.monotonic_ns()
+#: First open of each camera label in this process: outages are timed from it, so they
+#: span the new camera objects a reconnecting daemon creates.
+_FIRST_OPEN_NS: dict[str, int] = {}
 
 
 @dataclass(frozen=True)
@@ -156,6 +164,9 @@ class SimulatedCamera(Camera):
         Deliver this many frames, then raise EndOfStream (None: endless).
     label : str
         Name for messages; defaults to ``side``.
+    outage_after_s, outage_s : float
+        Simulated outage (module docstring): vanish ``outage_after_s`` seconds after the
+        first open of this label, for ``outage_s`` seconds (None: never).
     """
 
     backend = "simulated"
@@ -179,13 +190,20 @@ class SimulatedCamera(Camera):
         epoch_ns: int | None = None,
         max_frames: int | None = None,
         label: str | None = None,
+        outage_after_s: float | None = None,
+        outage_s: float = 5.0,
     ) -> None:
         super().__init__(label=label or side)
         if side not in ("left", "right"):
             raise ValueError(f"side must be 'left' or 'right', got {side!r}")
         if image_jitter_px < 0:
             raise ValueError(f"image_jitter_px must be >= 0, got {image_jitter_px}")
+        if outage_after_s is not None and not (outage_after_s >= 0 and outage_s > 0):
+            raise ValueError("outage_after_s must be >= 0 and outage_s > 0, got "
+                             f"{outage_after_s!r} and {outage_s!r}")
         self.side = side
+        self._outage = (outage_after_s, outage_s)
+        self._outage_ns: tuple[int, int] | None = None
         self._source_spec = source
         self.timing = TimingModel(
             TimingParams(
@@ -210,6 +228,13 @@ class SimulatedCamera(Camera):
         self._rng = np.random.default_rng(seed + 7919)
 
     def _open(self) -> None:
+        after, length = self._outage
+        if after is not None and self.realtime:
+            now = time.monotonic_ns()
+            t0 = _FIRST_OPEN_NS.setdefault(self.label, now) + int(after * 1e9)
+            self._outage_ns = (t0, t0 + int(length * 1e9))
+            if t0 <= now < self._outage_ns[1]:
+                raise CameraDisconnected(f"{self.label}: not found (simulated outage)")
         self.source = load_source(self._source_spec)
         interval = self.source.frame_interval_s
         if interval is not None and abs(interval * self.timing.p.fps - 1.0) > 1e-3:
@@ -245,12 +270,13 @@ class SimulatedCamera(Camera):
         k, device_ns, arrival_rel, lost = self._next_event()
         arrival = self.epoch_ns + arrival_rel
         if self.realtime:
-            wait_ns = arrival - time.monotonic_ns()
-            if wait_ns > timeout * 1e9:
-                time.sleep(timeout)
-                raise CameraTimeout(f"{self.label}: no frame within {timeout} s")
-            if wait_ns > 0:
-                time.sleep(wait_ns / 1e9)
+            if self._outage_ns is not None and arrival >= self._outage_ns[0]:
+                # The outage begins before this frame: wait for it like for a frame.
+                self._sleep_until(self._outage_ns[0], timeout)
+                if time.monotonic_ns() < self._outage_ns[1]:
+                    raise CameraDisconnected(f"{self.label}: connection lost (simulated "
+                                             "outage)")
+            self._sleep_until(arrival, timeout)
             host_ns = time.monotonic_ns()
         else:
             host_ns = arrival
@@ -269,6 +295,15 @@ class SimulatedCamera(Camera):
             lost=lost,
             temperatures={"sensor": 35.0},
         )
+
+    def _sleep_until(self, t_ns: int, timeout: float) -> None:
+        """Sleep until monotonic ``t_ns``; CameraTimeout when that is beyond ``timeout``."""
+        wait_ns = t_ns - time.monotonic_ns()
+        if wait_ns > timeout * 1e9:
+            time.sleep(timeout)
+            raise CameraTimeout(f"{self.label}: no frame within {timeout} s")
+        if wait_ns > 0:
+            time.sleep(wait_ns / 1e9)
 
     def _shift(self, image: np.ndarray) -> np.ndarray:
         dx, dy = self._rng.normal(0.0, self.image_jitter_px, 2)

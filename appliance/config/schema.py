@@ -1,0 +1,228 @@
+"""The configuration's schema: one frozen dataclass per section, every key with its default,
+documentation and validation rules (``config/default.yaml`` spells the defaults out).
+
+Validation lives in :mod:`appliance.config.validate`, loading and command-line overrides in
+:mod:`appliance.config.load`.
+"""
+
+# Every field is built by _opt() so that its documentation and validation rules live beside it.
+# ruff: noqa: RUF009
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+
+class ConfigError(ValueError):
+    """The configuration is invalid; ``errors`` lists one ``"key.path: problem"`` per line.
+
+    A ``ValueError`` so the CLI reports it as bad input (exit code 2, before any device
+    opens: restarting the service cannot fix it).
+    """
+
+    def __init__(self, errors: Sequence[str], source: str = "config") -> None:
+        self.errors = list(errors)
+        self.source = source
+        super().__init__("\n".join(f"{source}: {e}" for e in self.errors))
+
+
+def _opt(doc: str, default: Any = dataclasses.MISSING, *, factory: Any = None, **rules: Any):
+    """A dataclass field carrying its documentation and validation rules.
+
+    ``rules``: ``min``/``max`` (inclusive), ``gt`` (exclusive lower bound), ``nonempty``,
+    ``shape`` for nested float lists, ``orthonormal`` for rotation matrices.
+    """
+    meta = {"doc": doc, **rules}
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """One camera of the stereo pair."""
+
+    backend: str = _opt(
+        "camera back end name (simulated, replay, aravis, opencv, ...)", "simulated",
+        nonempty=True,
+    )
+    options: dict[str, Any] = _opt("back-end specific options, checked by the back end",
+                                   factory=dict)
+    frame_rate_hz: float = _opt("nominal frame rate in Hz", 30.0, gt=0.0, max=1000.0)
+
+
+@dataclass(frozen=True)
+class CamerasConfig:
+    """The stereo pair: ``left`` is the reference camera of the scene flow."""
+
+    left: CameraConfig = _opt("left (reference) camera", factory=CameraConfig)
+    right: CameraConfig = _opt("right camera", factory=CameraConfig)
+
+
+@dataclass(frozen=True)
+class AnemometerConfig:
+    """The 3D ultrasonic anemometer on a serial line."""
+
+    backend: str = _opt("anemometer back end (simulated, serial, replay, ...)", "simulated",
+                        nonempty=True)
+    protocol: str = _opt(
+        "wire protocol of the sensor (gill, gill_polar, campbell_csat3b, young_81000, "
+        "young_81000_uvw, metek_usonic3)", "gill", nonempty=True)
+    port: str | None = _opt(
+        "serial port URL for pyserial (/dev/ttyUSB0, loop://, spy:///dev/ttyUSB0); null lets "
+        "the simulated back end create its own pseudo terminal", None,
+    )
+    baud: int = _opt("baud rate", 9600, min=50, max=4_000_000)
+    parity: Literal["N", "E", "O", "M", "S"] = _opt("parity: N, E, O, M or S", "N")
+    options: dict[str, Any] = _opt("back-end specific options, checked by the back end",
+                                   factory=dict)
+    mounting: dict[str, Any] = _opt(
+        "mounting into the left camera frame: azimuth_deg / tilt_deg / roll_deg, or a 3x3 "
+        "'matrix' (rows X, Y, Z; columns the sensor's F, L, U), and optionally "
+        "'native_axes'; checked by drivers.anemometer.mounting", factory=dict)
+
+
+@dataclass(frozen=True)
+class PairingConfig:
+    """Left/right frame pairing by nearest arrival time."""
+
+    tolerance_s: float | None = _opt(
+        "largest |t_left - t_right| of a pair in seconds; null = half a frame period", None,
+        gt=0.0, max=10.0,
+    )
+    max_delay_s: float = _opt(
+        "seconds a frame waits for its partner before it is given up as unpaired (a busy "
+        "machine delays camera threads by a few hundred ms)", 1.0, gt=0.0, max=60.0)
+
+
+@dataclass(frozen=True)
+class RingConfig:
+    """Shared-memory ring of stereo pairs between acquisition and the worker processes."""
+
+    capacity: int = _opt("number of stereo-pair slots (>= 3: the method needs t0, t1, t2)",
+                         32, min=3, max=100_000)
+
+
+@dataclass(frozen=True)
+class ProcessingConfig:
+    """Scene-flow worker processes."""
+
+    enabled: bool = _opt("run the scene-flow chain at all", True)
+    workers: int = _opt("number of worker processes", 2, min=1, max=64)
+    parameters: dict[str, Any] = _opt(
+        "parameters passed to the processing chain as they are (checked by it)", factory=dict,
+    )
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    """MCAP recording of every raw frame, wind sample, pair, result and health snapshot."""
+
+    enabled: bool = _opt("write MCAP files", True)
+    dir: Path = _opt("directory of the MCAP files", Path("recordings"))
+    rotate_mb: float = _opt("start a new file past this size, MB (1e6 bytes)", 1024.0, gt=0.0)
+    rotate_s: float = _opt("start a new file after this many seconds", 3600.0, gt=0.0)
+    quota_gb: float | None = _opt(
+        "delete the oldest closed recordings when their total passes this, GB (1e9 bytes); "
+        "null = no quota", 50.0, gt=0.0,
+    )
+    fsync_s: float = _opt("flush the open chunk and fsync at least this often, seconds",
+                          5.0, gt=0.0, max=3600.0)
+    compression: Literal["zstd", "lz4", "none"] = _opt("chunk compression", "zstd")
+    chunk_kb: int = _opt("uncompressed chunk size, KiB", 1024, min=16, max=65536)
+    queue_size: int = _opt(
+        "messages the recorder queue holds before it drops (>= 2 s of 2 x 30 Hz frames)",
+        4096, min=16, max=1_000_000,
+    )
+    fields_every: int = _opt(
+        "record the full result fields (flow, disparity, velocity, mask) of every N-th "
+        "processed pair; summaries are recorded for every pair and the raw frames allow "
+        "any field to be recomputed with `ogiflow replay`", 10, min=1, max=1_000_000,
+    )
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Rerun live view."""
+
+    mode: Literal["serve", "connect", "save", "off"] = _opt(
+        "serve: web viewer on this box; connect: stream to a viewer at url; "
+        "save: write an .rrd file; off", "serve",
+    )
+    bind: str = _opt("address the gRPC and web servers bind to (serve mode)", "127.0.0.1",
+                     nonempty=True)
+    grpc_port: int = _opt("gRPC port of the served recording", 9876, min=1, max=65535)
+    web_port: int = _opt("HTTP port of the web viewer", 9090, min=1, max=65535)
+    url: str = _opt("viewer to stream to in connect mode", "rerun+http://127.0.0.1:9876/proxy",
+                    nonempty=True)
+    file: Path = _opt(".rrd file written in save mode", Path("ogiflow.rrd"))
+    queue_size: int = _opt("live items queued before new ones are dropped", 8, min=1,
+                           max=10_000)
+    jpeg_quality: int = _opt("JPEG quality of live images", 80, min=1, max=100)
+    server_memory_mb: int = _opt(
+        "serve mode: MB of recent live data the viewer server keeps for browsers that "
+        "connect later (0 = none); bounds its memory (about 1.6x this + 60 MB)", 64,
+        min=0, max=100_000)
+
+
+@dataclass(frozen=True)
+class HealthConfig:
+    """Health snapshots and the systemd watchdog."""
+
+    interval_s: float = _opt("seconds between health snapshots", 1.0, gt=0.0, max=3600.0)
+    watchdog: bool = _opt("send WATCHDOG=1 to systemd when it asks for it", True)
+    stall_s: float = _opt(
+        "stop the watchdog pings when no new frame arrived for this many seconds", 10.0,
+        gt=0.0, max=3600.0,
+    )
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """The synthetic gas scene that simulated cameras show (ignored for real cameras).
+
+    The plume is simulated once (Stable Fluids, paper ref. [22]) with the simulated
+    anemometer's mean wind, rendered into both cameras, cached on disk and looped.
+    """
+
+    frames: int = _opt("length of the pre-rendered loop, frames (30 Hz)", 240, min=10,
+                       max=100_000)
+    voxel_m: float = _opt("voxel size of the fluid grid, m (smaller = finer and slower)",
+                          0.04, min=0.005, max=0.2)
+    distance_m: float = _opt("distance of the plume from the cameras, m", 5.5, gt=0.5,
+                             max=100.0)
+    baseline_m: float = _opt("stereo baseline of the simulated cameras, m", 0.3, gt=0.0,
+                             max=10.0)
+    release_rate_g_s: float = _opt("gas release rate of the simulated leak, g/s", 3.0,
+                                   gt=0.0, max=1000.0)
+    seed: int = _opt("random seed of the simulated turbulence", 7, min=0)
+    cache_dir: Path | None = _opt(
+        "where rendered scenes are cached; null = $XDG_CACHE_HOME/ogiflow or "
+        "~/.cache/ogiflow", None,
+    )
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole appliance configuration (one YAML file)."""
+
+    cameras: CamerasConfig = _opt("the two OGI cameras", factory=CamerasConfig)
+    anemometer: AnemometerConfig = _opt("the anemometer", factory=AnemometerConfig)
+    pairing: PairingConfig = _opt("stereo pairing", factory=PairingConfig)
+    ring: RingConfig = _opt("ring buffer", factory=RingConfig)
+    processing: ProcessingConfig = _opt("scene flow workers", factory=ProcessingConfig)
+    recording: RecordingConfig = _opt("MCAP recording", factory=RecordingConfig)
+    live: LiveConfig = _opt("Rerun live view", factory=LiveConfig)
+    health: HealthConfig = _opt("health and watchdog", factory=HealthConfig)
+    calibration: Path | None = _opt(
+        "stereo calibration file (YAML from `ogiflow calibrate stereo`); null = none", None,
+    )
+    simulation: SimulationConfig = _opt("scene of the simulated cameras",
+                                        factory=SimulationConfig)

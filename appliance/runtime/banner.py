@@ -1,0 +1,47 @@
+"""What ``ogiflow run`` tells the user on stderr when it starts and when it stops."""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import Any
+
+
+def announce_start(app: Any) -> None:
+    """Where the live view and the recording are, and how to stop."""
+    where = app.live_url or "off"
+    rec = str(app.cfg.recording.dir) if app.cfg.recording.enabled else "off"
+    sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
+                     f"(Ctrl-C or SIGTERM stops)\n")
+
+
+def announce_end(app: Any) -> None:
+    """Final counts (processed and skipped triples per second, peak memory of every
+    process), and the simulated ground truth against the measurement."""
+    c = app.counters
+    elapsed = max(time.monotonic() - app.t_start, 1e-9)
+    share = c.results / max(c.results + c.skipped_pairs, 1)
+    sys.stderr.write(
+        f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
+        f"lost {c.frames_lost['left']}/{c.frames_lost['right']}, pairs {c.pairs}, "
+        f"processed {c.results} ({c.results / elapsed:.1f}/s, {100 * share:.0f} %), "
+        f"skipped {c.skipped_pairs} ({c.skipped_pairs / elapsed:.1f}/s), "
+        f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+    if app.peak_rss_mb:
+        names = ["daemon", *(f"worker {i}" for i in range(len(app.peak_rss_mb) - 1))]
+        sys.stderr.write("ogiflow: peak RSS (MB): " + ", ".join(
+            f"{n} {'n/a' if mb is None else f'{mb:.0f}'}"
+            for n, mb in zip(names, app.peak_rss_mb, strict=True)) + "\n")
+    comparison = app.publisher.truth_comparison()
+    if comparison is not None:
+        sys.stderr.write(
+            "ogiflow: simulated ground truth vs measured mean gas velocity over "
+            f"{comparison['frames']} valid frames: truth "
+            f"{_fmt(comparison['truth_m_s'])} m/s, measured "
+            f"{_fmt(comparison['measured_m_s'])} m/s, magnitude error "
+            f"{comparison['magnitude_error_pct']:.1f} %, direction error "
+            f"{comparison['direction_error_deg']:.1f} deg\n")
+
+
+def _fmt(v: Any) -> str:
+    return "(" + ", ".join(f"{x:.2f}" for x in v) + ")"

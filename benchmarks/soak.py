@@ -1,0 +1,253 @@
+"""Soak test: run the whole appliance for N minutes and watch its memory and its counters.
+
+Starts ``python -m appliance run`` (this checkout's code, default configuration unless
+``--config``/``--set`` say otherwise: simulated cameras and anemometer, recording on, live view
+served), samples the resident set size (RSS) of every process of the appliance - the daemon,
+its worker processes, the Rerun viewer server - every ``--sample-s`` seconds, optionally
+connects a headless browser to the live view for part of the run, and at the end reads the
+last health snapshot of the recording. It reports per process the RSS slope after warm-up
+(least-squares line, MB/h) and the frames lost, and writes ``soak.csv``, ``soak.json`` and
+``soak.png`` into ``--out``.
+
+    python benchmarks/soak.py --minutes 60 --browser-at 20 --browser-minutes 10
+
+Needs psutil and matplotlib (``pip install 'ogiflow[bench]'``); the browser needs Debian's
+``chromium`` and playwright (same extra).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))  # `python benchmarks/soak.py` from a checkout
+
+PAGE = "http://127.0.0.1:{web}/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{grpc}%2Fproxy"
+CHROMIUM_ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+                 "--ignore-gpu-blocklist"]
+
+
+def role_of(proc: Any, main_pid: int) -> str:
+    """A stable name for one process of the appliance (main, worker-N, viewer-server, ...)."""
+    if proc.pid == main_pid:
+        return "main"
+    try:
+        cmd = " ".join(proc.cmdline())
+        name = proc.name()
+    except Exception:
+        return "gone"
+    if "--serve-web" in cmd or name == "rerun":
+        return "viewer-server"
+    if "resource_tracker" in cmd:
+        return "resource-tracker"
+    if "spawn_main" in cmd:
+        return "worker"
+    return name
+
+
+def sample(main: Any) -> list[tuple[str, int, float]]:
+    """(role, pid, RSS MB) of the daemon and all its descendants."""
+    import psutil
+
+    out = []
+    try:
+        procs = [main, *main.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return out
+    for p in procs:
+        try:
+            out.append((role_of(p, main.pid), p.pid, p.memory_info().rss / 1e6))
+        except psutil.NoSuchProcess:
+            continue
+    return out
+
+
+def slope_mb_per_h(t_s: np.ndarray, rss_mb: np.ndarray) -> float | None:
+    """Least-squares slope of RSS over time, MB/h (None with fewer than 3 samples)."""
+    if len(t_s) < 3 or np.ptp(t_s) <= 0:
+        return None
+    return float(np.polyfit(t_s / 3600.0, rss_mb, 1)[0])
+
+
+def browse(stop: threading.Event, start_s: float, minutes: float, page_url: str,
+           log: list[str]) -> None:
+    """Open the live view in headless Chromium from ``start_s`` for ``minutes``."""
+    t_start = time.monotonic()
+    if stop.wait(start_s):
+        return
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        log.append("browser: playwright not installed; skipped")
+        return
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=shutil.which("chromium") or
+                                     "/usr/bin/chromium", args=CHROMIUM_ARGS)
+        page = browser.new_page(viewport={"width": 1280, "height": 800})
+        page.goto(page_url, timeout=120_000)
+        log.append(f"browser: page loaded at {time.monotonic() - t_start:.0f} s")
+        stop.wait(minutes * 60.0)
+        browser.close()
+        log.append(f"browser: closed at {time.monotonic() - t_start:.0f} s")
+
+
+def last_health(rec_dir: Path) -> dict[str, Any] | None:
+    """The last ``/health`` snapshot in the newest closed recording of ``rec_dir``."""
+    from appliance.recording.reader import iter_json
+
+    files = sorted(rec_dir.glob("ogiflow-*.mcap"))
+    if not files:
+        return None
+    last = None
+    _reader, messages = iter_json(files[-1], ["/health"])
+    for _topic, m in messages:
+        last = m
+    return last
+
+
+def plot(rows: list[tuple[float, str, int, float]], path: Path, title: str,
+         browser_window: tuple[float, float] | None) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for key in sorted({(r, p) for _t, r, p, _m in rows}):
+        pts = [(t, m) for t, r, p, m in rows if (r, p) == key]
+        ax.plot([t / 60 for t, _ in pts], [m for _, m in pts], label=f"{key[0]} ({key[1]})")
+    if browser_window is not None:
+        ax.axvspan(*browser_window, color="0.9", label="browser connected")
+    ax.set_xlabel("minutes")
+    ax.set_ylabel("RSS, MB")
+    ax.set_title(title)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--minutes", type=float, required=True, help="length of the run")
+    ap.add_argument("--warmup-min", type=float, default=10.0,
+                    help="minutes left out of the RSS slope (numba compilation, caches)")
+    ap.add_argument("--sample-s", type=float, default=10.0, help="RSS sampling interval")
+    ap.add_argument("--browser-at", type=float, default=None, metavar="MIN",
+                    help="connect a headless browser to the live view at this minute")
+    ap.add_argument("--browser-minutes", type=float, default=10.0)
+    ap.add_argument("--out", type=Path, default=Path("soak-out"))
+    ap.add_argument("--ports", type=int, nargs=2, default=(9876, 9090), metavar=("GRPC", "WEB"),
+                    help="live view ports (another appliance on the box may hold the defaults)")
+    ap.add_argument("--keep-recordings", action="store_true")
+    ap.add_argument("--config", default=None)
+    ap.add_argument("--set", action="append", default=[], dest="set_options")
+    args = ap.parse_args(argv)
+    import psutil
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    rec_dir = args.out / "rec"
+    cmd = [sys.executable, "-m", "appliance", "run", "--duration", str(args.minutes * 60),
+           "--record-dir", str(rec_dir), "--set", "recording.quota_gb=20",
+           "--set", f"live.grpc_port={args.ports[0]}", "--set", f"live.web_port={args.ports[1]}"]
+    if args.config:
+        cmd += ["--config", args.config]
+    for s in args.set_options:
+        cmd += ["--set", s]
+    log_path = args.out / "daemon.log"
+    t0 = time.monotonic()
+    with open(log_path, "w") as log_file:
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log_file, stderr=subprocess.STDOUT,
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    main_proc = psutil.Process(proc.pid)
+    stop = threading.Event()
+    events: list[str] = []
+    browser = None
+    if args.browser_at is not None:
+        browser = threading.Thread(target=browse, daemon=True, args=(
+            stop, args.browser_at * 60, args.browser_minutes,
+            PAGE.format(grpc=args.ports[0], web=args.ports[1]), events))
+        browser.start()
+    rows: list[tuple[float, str, int, float]] = []
+    load: list[float] = []
+    try:
+        while proc.poll() is None:
+            t = time.monotonic() - t0
+            rows.extend((t, role, pid, mb) for role, pid, mb in sample(main_proc))
+            load.append(os.getloadavg()[0])
+            time.sleep(args.sample_s)
+    except KeyboardInterrupt:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(60)
+    stop.set()
+    if browser is not None:
+        browser.join(30)
+    code = proc.returncode
+    health = last_health(rec_dir)
+
+    with open(args.out / "soak.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t_s", "role", "pid", "rss_mb"])
+        w.writerows(rows)
+    warm = args.warmup_min * 60
+    procs: dict[str, Any] = {}
+    for key in sorted({(r, p) for _t, r, p, _m in rows}):
+        pts = np.array([(t, m) for t, r, p, m in rows if (r, p) == key and t >= warm])
+        allpts = [m for t, r, p, m in rows if (r, p) == key]
+        half = pts[len(pts) // 2:] if len(pts) else pts
+        procs[f"{key[0]}:{key[1]}"] = {
+            "rss_start_mb": allpts[0], "rss_end_mb": allpts[-1], "rss_max_mb": max(allpts),
+            "slope_after_warmup_mb_per_h": (slope_mb_per_h(pts[:, 0], pts[:, 1])
+                                            if len(pts) else None),
+            # A cache still filling shows as a slope that falls from half to half.
+            "slope_last_half_mb_per_h": (slope_mb_per_h(half[:, 0], half[:, 1])
+                                         if len(half) else None)}
+    c = (health or {}).get("counters", {})
+    frames = c.get("frames_left", 0) + c.get("frames_right", 0)
+    lost = (c.get("frames_lost_left", 0) + c.get("frames_lost_right", 0)
+            + c.get("frame_queue_drops", 0))
+    report = {
+        "command": " ".join(cmd), "exit_code": code, "minutes": args.minutes,
+        "warmup_min": args.warmup_min, "processes": procs,
+        "frames": frames, "frames_lost": lost, "recorder_drops": c.get("recorder_drops"),
+        "pairs": c.get("pairs"),
+        "unpaired": [c.get("unpaired_left"), c.get("unpaired_right")],
+        "paired_pct": 100.0 * 2 * c.get("pairs", 0) / frames if frames else None,
+        "results": c.get("results"), "skipped_pairs": c.get("skipped_pairs"),
+        "load_avg_1min": {"mean": float(np.mean(load)) if load else None,
+                          "max": float(np.max(load)) if load else None},
+        "counters": c, "events": events,
+    }
+    (args.out / "soak.json").write_text(json.dumps(report, indent=2))
+    window = None
+    if args.browser_at is not None:
+        window = (args.browser_at, args.browser_at + args.browser_minutes)
+    plot(rows, args.out / "soak.png", f"ogiflow run, {args.minutes:g} min: RSS per process",
+         window)
+    if not args.keep_recordings:
+        shutil.rmtree(rec_dir, ignore_errors=True)
+    print(json.dumps({k: report[k] for k in ("exit_code", "frames", "frames_lost", "pairs",
+                                             "paired_pct", "load_avg_1min")}, indent=2))
+    for name, p in procs.items():
+        s = p["slope_after_warmup_mb_per_h"]
+        print(f"{name:28s} RSS {p['rss_start_mb']:7.1f} -> {p['rss_end_mb']:7.1f} MB, "
+              f"slope after warm-up {'n/a' if s is None else f'{s:+.1f}'} MB/h")
+    return 0 if code == 0 else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
