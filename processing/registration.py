@@ -213,6 +213,14 @@ def estimate_shift_checked(
     h, w = ref.shape
     if border < 0 or 2 * border >= min(h, w) - 4:
         raise ValueError(f"border must be in [0, {(min(h, w) - 5) // 2}], got {border}")
+    # Work in units of the reference's spread: radiance (W m^-2 sr^-1, ~1e-2 per K) and
+    # 16-bit counts then meet the same texture test and the same numerics.
+    spread = float(ref.std())
+    if not spread > 0:
+        raise ValueError("reference image has no texture: the translation cannot be measured")
+    offset = float(ref.mean())
+    ref = (ref - offset) / spread
+    mov = (mov - offset) / spread
     if smooth_sigma > 0:
         ref = cv2.GaussianBlur(ref, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
         mov = cv2.GaussianBlur(mov, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
