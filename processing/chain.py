@@ -35,12 +35,15 @@ import numpy as np
 
 from processing.baselines import sgbm_initial_disparity
 from processing.calibration import StereoCalibration, rectification_maps
-from processing.calibration.radiometric import CharacteristicCurve
+from processing.calibration.radiometric import CharacteristicCurve, band_radiance
+from processing.depth_gate import DepthGate, out_of_band_motion, suppress
 from processing.disparity import joint_disparity
 from processing.optical_flow import brox_optical_flow
 from processing.preprocess import (
     DiffScaleTracker,
     PreprocessedTriple,
+    differential_image,
+    preprocess_flags,
     preprocess_stereo,
     radiometric_correction,
 )
@@ -161,6 +164,18 @@ class ChainParameters:
         Start the flow and the disparity from the previous triple's results (needs a
         state; only when this triple directly follows it). The SGM or d0 initialisation
         is then used only on a cold start.
+    gas_temperature_k : float or None
+        Gas temperature in K (about the ambient air temperature). With radiometric curves
+        in the geometry, the differential images become differential optical depth, free of
+        the background's texture (:func:`processing.preprocess.differential_image`); None
+        (or no curves) keeps plain differences.
+    min_contrast_k : float
+        Floor of the gas-background contrast for that division, in K.
+    depth_gate : bool
+        Remove moving image regions whose stereo disparity lies outside the gas band
+        [d0, d0 + sgm_num_disparities] before the solvers (:mod:`processing.depth_gate`).
+    max_motion_px : int
+        Largest image motion within a triple, px: how far the gate's masks grow.
     flow_options, disparity_options, segmentation_options : mapping
         Further keyword arguments of the three solvers (iteration counts, pyramid ...).
     """
@@ -179,6 +194,10 @@ class ChainParameters:
     diff_scale: float | None = None
     scale_forgetting: float = 0.02
     warm_start: bool = True
+    gas_temperature_k: float | None = None
+    min_contrast_k: float = 1.0
+    depth_gate: bool = True
+    max_motion_px: int = 8
     flow_options: Mapping[str, Any] = field(default_factory=dict)
     disparity_options: Mapping[str, Any] = field(default_factory=dict)
     segmentation_options: Mapping[str, Any] = field(default_factory=dict)
@@ -296,14 +315,28 @@ def frame_interval(times_s: Sequence[float]) -> float:
     return (t2 - t0) / 2.0
 
 
+def gas_radiance(params: ChainParameters,
+                 geometry: StereoGeometry) -> tuple[float | None, float]:
+    """(L_g, contrast floor) in radiance units for the optical-depth differential images,
+    or (None, 0) when the gas temperature or the radiometric curves are not known."""
+    curve = geometry.curve_left
+    if params.gas_temperature_k is None or curve is None or geometry.curve_right is None:
+        return None, 0.0
+    t = float(params.gas_temperature_k)
+    lg = float(band_radiance(t, curve.band_m))
+    per_k = float(band_radiance(t + 0.5, curve.band_m) - band_radiance(t - 0.5, curve.band_m))
+    return lg, per_k * float(params.min_contrast_k)
+
+
 def initial_scale(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
-                  geometry: StereoGeometry) -> float:
-    """A first normalisation scale: 0.999 quantile of |I(t0) - I(t1)| over both cameras."""
+                  geometry: StereoGeometry, params: ChainParameters | None = None) -> float:
+    """A first normalisation scale: 0.999 quantile of |D(t0)| over both cameras."""
+    lg, floor = gas_radiance(params or ChainParameters(), geometry)
     diffs = []
     for frames, curve in ((left, geometry.curve_left), (right, geometry.curve_right)):
         a = radiometric_correction(frames[0], curve)
         b = radiometric_correction(frames[1], curve)
-        diffs.append(np.abs(a - b)[::2, ::2].ravel())
+        diffs.append(np.abs(differential_image(a, b, lg, floor))[::2, ::2].ravel())
     q = float(np.quantile(np.concatenate(diffs), 0.999))
     # A static scene has no difference at all; any positive scale then gives flat 0.5.
     return q if q > 0 else 1.0
@@ -379,18 +412,30 @@ def compute_scene_flow(
     elif state is not None and state.scale is not None:
         scale = state.scale.scale
     else:
-        scale = initial_scale(left, right, geometry)
+        scale = initial_scale(left, right, geometry, params)
     shift01 = state.shift01 if (state is not None and consecutive) else (None, None)
 
+    lg, contrast_floor = gas_radiance(params, geometry)
     t = time.perf_counter()
     pl, pr = preprocess_stereo(
         left, right, scale=scale,
         curves=(geometry.curve_left, geometry.curve_right),
         maps=(geometry.maps_left, geometry.maps_right),
         register=params.register, denoise_lambda=params.denoise_lambda, shift01=shift01,
-        max_shift_px=params.max_jitter_px,
+        max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
     )
     t = lap("preprocess", t)
+
+    flags: list[str] = []
+    if params.depth_gate:
+        gate = out_of_band_motion(pl.diff0, pr.diff0, d_min=params.d0,
+                                  d_max=params.d0 + params.sgm_num_disparities,
+                                  dilate_px=params.max_motion_px)
+        if gate.fraction > 0:
+            flags.append("object_motion_rejected")
+            pl, pr, scale = _apply_gate(pl, pr, gate, scale)
+        t = lap("depth_gate", t)
+    flags.extend(preprocess_flags(pl, pr))
 
     init_flow = None
     if params.warm_start and consecutive and state is not None:
@@ -433,7 +478,7 @@ def compute_scene_flow(
     t = lap("segmentation", t)
 
     quality = c_usf(u_sf, seg.mask, valid & u_sf_valid)
-    summary = summarize_frame(velocity, valid, seg.mask, quality)
+    summary = summarize_frame(velocity, valid, seg.mask, quality, tuple(flags))
     lap("summary", t)
     timings["total"] = (time.perf_counter() - t_start) * 1e3
 
@@ -446,6 +491,37 @@ def compute_scene_flow(
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=timings,
     )
+
+
+def _apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate,
+                scale: float) -> tuple[PreprocessedTriple, PreprocessedTriple, float]:
+    """Remove the gate's pixels from both views and renormalise without them.
+
+    A warm object has far more contrast than the gas and sets the normalisation scale
+    (0.999 quantile of |D|); left in, it would squeeze the gas into a few grey levels
+    around 0.5 where the flow sees no signal. The triple is rescaled to the quantile of
+    the remaining pixels (the map to [0, 1] is affine, so rescaling the normalised images
+    equals normalising anew), and the raw differences handed to the scale tracker lose the
+    removed pixels too.
+    """
+    raws = [np.where(gate.left, np.float32(0), pl.raw0), np.where(gate.left, np.float32(0),
+            pl.raw1), np.where(gate.right, np.float32(0), pr.raw0),
+            np.where(gate.right, np.float32(0), pr.raw1)]
+    q = float(np.quantile(np.abs(np.concatenate([r[::2, ::2].ravel() for r in raws])), 0.999))
+    new_scale = q if 0 < q < scale else scale
+    factor = np.float32(scale / new_scale)
+
+    def clean(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        out = suppress(diff, mask)
+        if factor != 1:
+            out = np.clip((out - np.float32(0.5)) * factor + np.float32(0.5), 0.0, 1.0)
+        return out.astype(np.float32, copy=False)
+
+    pl = dataclasses.replace(pl, diff0=clean(pl.diff0, gate.left),
+                             diff1=clean(pl.diff1, gate.left), raw0=raws[0], raw1=raws[1])
+    pr = dataclasses.replace(pr, diff0=clean(pr.diff0, gate.right),
+                             diff1=clean(pr.diff1, gate.right), raw0=raws[2], raw1=raws[3])
+    return pl, pr, new_scale
 
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,
