@@ -55,14 +55,6 @@ from processing.velocity import scene_flow_velocity, surface_position
 
 Maps = tuple[np.ndarray, np.ndarray]
 
-#: Iterations of the joint d/d' solver (Eq. 6) the chain uses unless
-#: ``disparity_options`` overrides them: one more warp and inner iteration on the coarse
-#: levels and more at the finest than the solver's own defaults. On the robustness matrix's
-#: field scenes the defaults left d' short (V_Z 0.2-0.6 m/s for 0.9 m/s: the coarse levels
-#: had not converged); these recover it (ideal-condition RMVE 15.5 -> 4.5 % on an
-#: out-of-plane wind) for about 25 % more chain time.
-DISPARITY_ITERATIONS: dict[str, int] = {"n_warps": 3, "n_inner": 4, "n_inner_finest": 6,
-                                        "n_sor": 15}
 
 
 @dataclass(frozen=True)
@@ -163,7 +155,9 @@ class ChainParameters:
         Remove camera jitter by registering consecutive frames on the static background.
     max_jitter_px : float
         Registration estimates larger than this are taken for gas motion (featureless
-        background) and not applied; the result counts them in ``rejected_shifts``.
+        background) and not applied; the result counts them in ``rejected_shifts``. The
+        shift between two frames is the difference of two independent jitters: with 0.3
+        px per axis it exceeds 1 px in about 6 % of the pairs, hence 1.5.
     diff_scale : float or None
         Normalisation scale of the differential images in radiance (or count) units. None
         tracks it online: the 0.999 quantile of |I_diff| over both cameras, with
@@ -192,8 +186,7 @@ class ChainParameters:
         The default 0.7 (memory ~3 frames) halved the triple-to-triple scatter of V_Z on
         the robustness matrix.
     flow_options, disparity_options, segmentation_options : mapping
-        Further keyword arguments of the three solvers (iteration counts, pyramid ...);
-        ``disparity_options`` updates :data:`DISPARITY_ITERATIONS`.
+        Further keyword arguments of the three solvers (iteration counts, pyramid ...).
     """
 
     alpha: float = 0.05
@@ -206,7 +199,7 @@ class ChainParameters:
     sgm_num_disparities: int = 64
     denoise_lambda: float = 2.0
     register: bool = True
-    max_jitter_px: float = 1.0
+    max_jitter_px: float = 1.5
     diff_scale: float | None = None
     scale_forgetting: float = 0.02
     warm_start: bool = True
@@ -477,8 +470,7 @@ def compute_scene_flow(
     t = lap("disparity_init", t)
     d, dd = joint_disparity(pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow,
                             gamma1=params.gamma1, gamma2=params.gamma2, d0=params.d0,
-                            initial_disparity=init_d,
-                            **{**DISPARITY_ITERATIONS, **params.disparity_options})
+                            initial_disparity=init_d, **params.disparity_options)
     if params.temporal_weight > 0:
         history = state.previous_disparity_change if (state is not None and consecutive) \
             else None

@@ -44,7 +44,9 @@ ACTIVITY_FLOOR = 0.05
 #: Half side of the window that averages out-of-band disparities for the right view's mask,
 #: px, and the out-of-band votes a region needs to be an object (fewer are SGBM outliers).
 VOTE_RADIUS = 7
-MIN_VOTES = 6
+MIN_VOTES = 12
+#: An object's region needs this many times more out-of-band than in-band votes.
+MAJORITY = 3.0
 
 
 @dataclass(frozen=True)
@@ -118,7 +120,9 @@ def out_of_band_motion(
     n_labels, labels = cv2.connectedComponents(near_active, connectivity=8)
     n_out = np.bincount(labels[outside], minlength=n_labels)
     n_in = np.bincount(labels[inside], minlength=n_labels)
-    reject = (n_out >= MIN_VOTES) & (n_out > n_in)
+    # A clear majority: SGBM on noise (low contrast) scatters over the whole search range
+    # and would otherwise put about a third of a noise region out of band.
+    reject = (n_out >= MIN_VOTES) & (n_out > MAJORITY * n_in)
     reject[0] = False  # label 0: the still background
     out = reject[labels]
     win = (2 * VOTE_RADIUS + 1, 2 * VOTE_RADIUS + 1)

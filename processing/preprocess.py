@@ -431,7 +431,7 @@ JITTER_FLAG_PX = 0.05
 #: Peak-to-noise ratio of a normalised differential image below which ``low_contrast``
 #: is flagged: the gas signal (at most 0.5 from "no change") is within this many noise
 #: standard deviations.
-LOW_CONTRAST_RATIO = 10.0
+LOW_CONTRAST_RATIO = 6.0
 
 
 def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> list[str]:
@@ -439,8 +439,8 @@ def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> lis
 
     ``registration_rejected``: a jitter estimate was not applied (no static texture);
     ``jitter_corrected``: a shift of at least :data:`JITTER_FLAG_PX` was removed;
-    ``low_contrast``: the strongest change in the left differential image (its 0.999
-    quantile of |I_diff - 0.5|) is below :data:`LOW_CONTRAST_RATIO` times its robust noise.
+    ``low_contrast``: :func:`contrast_ratio` of the left camera below
+    :data:`LOW_CONTRAST_RATIO`.
     """
     flags = []
     if left.rejected_shifts or right.rejected_shifts:
@@ -448,8 +448,15 @@ def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> lis
     shifts = [*left.shifts, *right.shifts]
     if any(float(np.hypot(*s)) >= JITTER_FLAG_PX for s in shifts):
         flags.append("jitter_corrected")
-    a = np.abs(left.diff0[::2, ::2] - np.float32(0.5))
-    noise = 1.4826 * float(np.median(a)) + 1e-6
-    if float(np.quantile(a, 0.999)) < LOW_CONTRAST_RATIO * noise:
+    if contrast_ratio(left) < LOW_CONTRAST_RATIO:
         flags.append("low_contrast")
     return flags
+
+
+def contrast_ratio(triple: PreprocessedTriple) -> float:
+    """Strongest change over noise in the raw (not denoised) D(t0): the 0.999 quantile of
+    |D| over 1.4826 x its median absolute value (the noise where nothing moves)."""
+    a = np.abs(triple.raw0[::2, ::2])
+    noise = 1.4826 * float(np.median(a))
+    peak = float(np.quantile(a, 0.999))
+    return peak / noise if noise > 0 else float("inf")
