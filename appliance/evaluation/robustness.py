@@ -366,9 +366,12 @@ def acceptance(results: dict[str, Metrics]) -> list[str]:
 
 
 def public(results: dict[str, Metrics]) -> dict[str, Any]:
-    """The JSON document (per-frame values dropped from the pooled summary to keep it small)."""
+    """The JSON document: per condition the pooled and per-scene summaries, flags and time
+    (per-triple values left out: 22 conditions x 4 scenes of them make a megabyte)."""
     out: dict[str, Any] = {}
     for name, res in results.items():
         pooled = {k: v for k, v in res["pooled"].items() if k != "frames"}
-        out[name] = {**res, "pooled": pooled}
+        scenes = {sc: {k: v for k, v in summ.items() if k != "frames"}
+                  for sc, summ in res["scenes"].items()}
+        out[name] = {**res, "pooled": pooled, "scenes": scenes}
     return out
