@@ -344,7 +344,7 @@ def preprocess_camera(
         def plausible(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
             nonlocal rejected
             try:
-                shift, converged = estimate_shift_checked(a, b, max_iter=10)
+                shift, converged = estimate_shift_checked(a, b, max_iter=20)
             except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
                 shift, converged = (0.0, 0.0), False
             if converged and float(np.hypot(*shift)) <= max_shift:

@@ -58,9 +58,9 @@ def _gas_free_run(params: ChainParameters, n_frames: int = 5) -> list[SceneFlowR
 
 
 def test_moving_warm_object_without_gas_is_never_segmented_as_gas() -> None:
-    # d0 = s b / Z_far: the gas may lie between 3.4 m and 6.3 m (band [18, 34) px); the
+    # d0 = s b / Z_far: the gas may lie between 3.25 m and 5.85 m (band [20, 36) px); the
     # object at 8 m (d = 14.6 px) and the wall at 12 m (d = 9.75 px) lie outside it.
-    params = ChainParameters(d0=18.0, sgm_num_disparities=16)
+    params = ChainParameters(d0=20.0, sgm_num_disparities=16)
     results = _gas_free_run(params)
     for res in results:
         assert not res.gas_mask.any(), f"{res.gas_mask.sum()} object pixels taken for gas"
@@ -71,7 +71,7 @@ def test_moving_warm_object_without_gas_is_never_segmented_as_gas() -> None:
 def test_without_the_depth_gate_the_object_is_taken_for_gas() -> None:
     # The failure the gate removes (so the test above can fail): the paper's chain alone
     # segments the moving object.
-    params = ChainParameters(d0=18.0, sgm_num_disparities=16, depth_gate=False)
+    params = ChainParameters(d0=20.0, sgm_num_disparities=16, depth_gate=False)
     results = _gas_free_run(params, n_frames=4)
     assert any(res.gas_mask.sum() > 200 for res in results)
 
@@ -99,8 +99,9 @@ def test_low_contrast_is_flagged_and_strong_gas_is_not() -> None:
     blob = noise.copy()
     blob[20:40, 30:50] += 0.3
     zero = ((0.0, 0.0), (0.0, 0.0))
-    weak = PreprocessedTriple(noise, noise, noise, noise, zero)
-    strong = PreprocessedTriple(blob, blob, blob, blob, zero)
+    # (raw differences are centred on 0, normalised ones on 0.5)
+    weak = PreprocessedTriple(noise, noise, noise - 0.5, noise - 0.5, zero)
+    strong = PreprocessedTriple(blob, blob, blob - 0.5, blob - 0.5, zero)
     assert "low_contrast" in preprocess_flags(weak, weak)
     assert preprocess_flags(strong, strong) == []
     shifted = replace(strong, shifts=((0.2, 0.0), (0.0, 0.0)), rejected_shifts=1)
