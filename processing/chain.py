@@ -36,14 +36,14 @@ import numpy as np
 from processing.baselines import sgbm_initial_disparity
 from processing.calibration import StereoCalibration, rectification_maps
 from processing.calibration.radiometric import CharacteristicCurve, band_radiance
-from processing.depth_gate import DepthGate, out_of_band_motion, suppress
+from processing.depth_gate import apply_gate, out_of_band_motion
 from processing.disparity import joint_disparity
+from processing.disturbances import preprocess_flags
 from processing.optical_flow import brox_optical_flow
 from processing.preprocess import (
     DiffScaleTracker,
     PreprocessedTriple,
     differential_image,
-    preprocess_flags,
     preprocess_stereo,
     radiometric_correction,
 )
@@ -444,7 +444,7 @@ def compute_scene_flow(
                                   dilate_px=params.max_motion_px)
         if gate.fraction > 0:
             flags.append("object_motion_rejected")
-            pl, pr, scale = _apply_gate(pl, pr, gate, scale)
+            pl, pr, scale = apply_gate(pl, pr, gate, scale)
         t = lap("depth_gate", t)
     flags.extend(preprocess_flags(pl, pr))
 
@@ -507,37 +507,6 @@ def compute_scene_flow(
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=timings,
     )
-
-
-def _apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate,
-                scale: float) -> tuple[PreprocessedTriple, PreprocessedTriple, float]:
-    """Remove the gate's pixels from both views and renormalise without them.
-
-    A warm object has far more contrast than the gas and sets the normalisation scale
-    (0.999 quantile of |D|); left in, it would squeeze the gas into a few grey levels
-    around 0.5 where the flow sees no signal. The triple is rescaled to the quantile of
-    the remaining pixels (the map to [0, 1] is affine, so rescaling the normalised images
-    equals normalising anew), and the raw differences handed to the scale tracker lose the
-    removed pixels too.
-    """
-    raws = [np.where(gate.left, np.float32(0), pl.raw0), np.where(gate.left, np.float32(0),
-            pl.raw1), np.where(gate.right, np.float32(0), pr.raw0),
-            np.where(gate.right, np.float32(0), pr.raw1)]
-    q = float(np.quantile(np.abs(np.concatenate([r[::2, ::2].ravel() for r in raws])), 0.999))
-    new_scale = q if 0 < q < scale else scale
-    factor = np.float32(scale / new_scale)
-
-    def clean(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        out = suppress(diff, mask)
-        if factor != 1:
-            out = np.clip((out - np.float32(0.5)) * factor + np.float32(0.5), 0.0, 1.0)
-        return out.astype(np.float32, copy=False)
-
-    pl = dataclasses.replace(pl, diff0=clean(pl.diff0, gate.left),
-                             diff1=clean(pl.diff1, gate.left), raw0=raws[0], raw1=raws[1])
-    pr = dataclasses.replace(pr, diff0=clean(pr.diff0, gate.right),
-                             diff1=clean(pr.diff1, gate.right), raw0=raws[2], raw1=raws[3])
-    return pl, pr, new_scale
 
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,

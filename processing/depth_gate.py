@@ -27,12 +27,14 @@ from gas by depth; it remains for the segmentation.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from processing.baselines import sgbm_disparity
+from processing.preprocess import PreprocessedTriple
 from processing.validation import as_float_image, check_same_shape
 
 #: Multiple of the robust noise spread above which a differential pixel counts as active.
@@ -152,3 +154,34 @@ def suppress(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     out = np.array(diff, dtype=np.float32, copy=True)
     out[mask] = 0.5
     return out
+
+
+def apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate,
+                scale: float) -> tuple[PreprocessedTriple, PreprocessedTriple, float]:
+    """Remove the gate's pixels from both views of a triple and renormalise without them.
+
+    A warm object has far more contrast than the gas and sets the normalisation scale
+    (0.999 quantile of |D|); left in, it would squeeze the gas into a few grey levels
+    around 0.5 where the flow sees no signal. The triple is rescaled to the quantile of
+    the remaining pixels (the map to [0, 1] is affine, so rescaling the normalised images
+    equals normalising anew), and the raw differences handed to the scale tracker lose the
+    removed pixels too.
+    """
+    raws = [np.where(gate.left, np.float32(0), pl.raw0), np.where(gate.left, np.float32(0),
+            pl.raw1), np.where(gate.right, np.float32(0), pr.raw0),
+            np.where(gate.right, np.float32(0), pr.raw1)]
+    q = float(np.quantile(np.abs(np.concatenate([r[::2, ::2].ravel() for r in raws])), 0.999))
+    new_scale = q if 0 < q < scale else scale
+    factor = np.float32(scale / new_scale)
+
+    def clean(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        out = suppress(diff, mask)
+        if factor != 1:
+            out = np.clip((out - np.float32(0.5)) * factor + np.float32(0.5), 0.0, 1.0)
+        return out.astype(np.float32, copy=False)
+
+    pl = dataclasses.replace(pl, diff0=clean(pl.diff0, gate.left),
+                             diff1=clean(pl.diff1, gate.left), raw0=raws[0], raw1=raws[1])
+    pr = dataclasses.replace(pr, diff0=clean(pr.diff0, gate.right),
+                             diff1=clean(pr.diff1, gate.right), raw0=raws[2], raw1=raws[3])
+    return pl, pr, new_scale

@@ -92,7 +92,8 @@ def test_jitter_with_noise_is_registered_within_005_px(seed: int) -> None:
 
 
 def test_low_contrast_is_flagged_and_strong_gas_is_not() -> None:
-    from processing.preprocess import PreprocessedTriple, preprocess_flags
+    from processing.disturbances import preprocess_flags
+    from processing.preprocess import PreprocessedTriple
 
     rng = np.random.default_rng(0)
     noise = (0.5 + rng.normal(0.0, 0.01, (60, 80))).astype(np.float32)
