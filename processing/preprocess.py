@@ -7,10 +7,25 @@ Per camera and per triple of consecutive frames (t0, t1, t2), in this order:
 2. rectification with the stereo calibration's maps (:func:`apply_rectification`);
 3. jitter removal: t1 and t2 are registered onto t0 (:mod:`processing.registration`), so both
    differential images of the triple live on the t0 pixel grid;
-4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units;
+4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units, or,
+   when the gas radiance L_g is known, the differential optical depth
+   (:func:`differential_image`);
 5. Sobolev denoising of each difference (:mod:`processing.denoise`);
 6. normalisation to [0, 1] with one fixed scale shared by both cameras
    (:func:`normalise_difference`).
+
+Why the differential optical depth: with Eq. 1, I = L_bg tau + L_g (1 - tau), so the plain
+difference I(t0) - I(t1) = (L_bg - L_g)(tau0 - tau1) carries the background's texture: in
+front of pipes and tanks the gas's own signal is modulated by a pattern that does not move
+with the gas, and the right camera sees another part of the wall behind the same gas (the
+wall has its own disparity). Both break the constancy assumptions of Eq. 3. Dividing by the
+local contrast I - L_g = (L_bg - L_g) tau removes L_bg exactly:
+(I(t0) - I(t1)) / (I_mid - L_g) ~ (tau0 - tau1) / tau, the change of optical depth, which
+moves with the gas and is the same in both views. It needs radiance units (a radiometric
+calibration) and L_g, the radiance of a black body at the gas temperature (about the
+ambient air temperature, which the anemometer measures). Where |I - L_g| is below
+``min_contrast`` the divisor is held at that floor, so noise is not amplified without bound
+where the background has the gas's temperature (the low-contrast case).
 
 Why one shared, slowly varying scale and not per-frame min-max: the joint disparity energy
 compares intensities across cameras (E1: left vs right at t0, E4: left vs right at t1) and
@@ -110,6 +125,41 @@ def apply_rectification(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray)
         cv2.INTER_LINEAR,
         borderMode=cv2.BORDER_REPLICATE,
     )
+
+
+def differential_image(
+    earlier: np.ndarray,
+    later: np.ndarray,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
+) -> np.ndarray:
+    """Differential image of two registered frames (Eq. 2), optionally as optical depth.
+
+    Parameters
+    ----------
+    earlier, later : ndarray, shape (H, W), float32
+        I(t) and I(t+1) in radiance units (or counts when ``gas_radiance`` is None).
+    gas_radiance : float or None
+        L_g, in-band radiance of a black body at the gas temperature, same unit as the
+        frames. None gives the plain difference I(t) - I(t+1).
+    min_contrast : float
+        Floor of |I_mid - L_g| (radiance units, > 0 when ``gas_radiance`` is given).
+
+    Returns
+    -------
+    ndarray, shape (H, W), float32
+        I(t) - I(t+1), or (I(t) - I(t+1)) / c with c = I_mid - L_g held at +-``min_contrast``
+        (module docstring): dimensionless, ~ the change of optical depth.
+    """
+    diff = earlier - later
+    if gas_radiance is None:
+        return diff
+    floor = check_positive(min_contrast, "min_contrast")
+    contrast = 0.5 * (earlier + later) - np.float32(gas_radiance)
+    # The divisor keeps its sign (gas in front of a warmer or a colder background) and is
+    # held at the floor where the background has about the gas's temperature.
+    mag = np.maximum(np.abs(contrast), np.float32(floor))
+    return (diff / np.where(contrast < 0, -mag, mag)).astype(np.float32, copy=False)
 
 
 def normalise_difference(diff: np.ndarray, scale: float) -> np.ndarray:
@@ -233,6 +283,8 @@ def preprocess_camera(
     denoise_lambda: float = 2.0,
     shift01: tuple[float, float] | None = None,
     max_shift_px: float = 1.0,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
 ) -> PreprocessedTriple:
     """Steps 1-6 of the module docstring for one camera and three consecutive frames.
 
@@ -260,6 +312,9 @@ def preprocess_camera(
         measure. Camera jitter is sub-pixel (paper Sec. 4.1), so an estimate larger than
         this, or one whose refinement did not converge (no rigid shift explains the
         change), is treated as gas motion: not applied, and counted in ``rejected_shifts``.
+    gas_radiance, min_contrast : float or None, float
+        L_g and the contrast floor of :func:`differential_image` (radiance units; needs
+        ``curve``); None keeps the plain difference.
 
     Returns
     -------
@@ -288,7 +343,10 @@ def preprocess_camera(
 
         def plausible(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
             nonlocal rejected
-            shift, converged = estimate_shift_checked(a, b, max_iter=10)
+            try:
+                shift, converged = estimate_shift_checked(a, b, max_iter=20)
+            except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
+                shift, converged = (0.0, 0.0), False
             if converged and float(np.hypot(*shift)) <= max_shift:
                 return shift
             rejected += 1
@@ -299,8 +357,8 @@ def preprocess_camera(
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)
-    raw0 = imgs[0] - imgs[1]
-    raw1 = imgs[1] - imgs[2]
+    raw0 = differential_image(imgs[0], imgs[1], gas_radiance, min_contrast)
+    raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
     diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
     diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
     return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), rejected)
@@ -320,6 +378,8 @@ def preprocess_stereo(
     denoise_lambda: float = 2.0,
     shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
     max_shift_px: float = 1.0,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
 ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
     """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
 
@@ -334,7 +394,7 @@ def preprocess_stereo(
         Shared normalisation scale in radiance units.
     curves, maps, shift01 : pairs (left, right)
         Per-camera characteristic curve, rectification maps and known t0 -> t1 shift.
-    register, denoise_lambda, max_shift_px
+    register, denoise_lambda, max_shift_px, gas_radiance, min_contrast
         As in :func:`preprocess_camera`, the same for both cameras.
 
     Returns
@@ -357,8 +417,11 @@ def preprocess_stereo(
             denoise_lambda=denoise_lambda,
             shift01=shift01[k],
             max_shift_px=max_shift_px,
+            gas_radiance=gas_radiance,
+            min_contrast=min_contrast,
         )
         for k, frames in enumerate((left, right))
     )
     check_same_shape(out[0].diff0, out[1].diff0, "left differential image", "right")
     return out[0], out[1]
+

@@ -43,6 +43,9 @@ class GasSummary:
     c_usf : float or None
         Quality coefficient c_USF of the frame (Eq. 8), passed through; None when not given
         or not finite.
+    flags : tuple of str
+        What the chain detected in this frame that makes the number weaker or invalid
+        (:data:`FLAGS`); empty when nothing was detected.
     """
 
     valid: bool
@@ -52,10 +55,25 @@ class GasSummary:
     speed: float | None
     angles_deg: tuple[float, float, float] | None
     c_usf: float | None
+    flags: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, object]:
         """Plain dict (JSON-ready: tuples become lists by ``json``, None becomes null)."""
         return asdict(self)
+
+
+#: Flags a summary can carry, with what they tell an operator.
+FLAGS: dict[str, str] = {
+    "no_gas": "no gas segmented (no number)",
+    "jitter_corrected": "camera jitter was measured on the static background and removed",
+    "registration_rejected": "the background has no static texture to measure jitter on "
+                             "(sky, uniform wall): jitter, if any, is in the velocity (V_Z "
+                             "most of all)",
+    "low_contrast": "the gas signal is within a few times the camera noise: velocities are "
+                    "weak",
+    "object_motion_rejected": "moving image regions outside the gas depth band or without "
+                              "stereo consistency (objects, not gas) were excluded",
+}
 
 
 def directional_angles(vector: np.ndarray) -> tuple[float, float, float] | None:
@@ -87,6 +105,7 @@ def summarize_frame(
     valid: np.ndarray,
     gas_mask: np.ndarray,
     c_usf: float | None = None,
+    flags: tuple[str, ...] = (),
 ) -> GasSummary:
     """Mean 3D gas velocity, its magnitude and directional angles over gas & valid pixels.
 
@@ -101,6 +120,9 @@ def summarize_frame(
         Gas region Omega_g from the segmentation.
     c_usf : float or None
         c_USF of the frame (Eq. 8), reported unchanged when finite.
+    flags : tuple of str
+        Keys of :data:`FLAGS` detected by the chain; ``no_gas`` is added here when no pixel
+        qualifies.
 
     Returns
     -------
@@ -123,6 +145,9 @@ def summarize_frame(
             raise ValueError(f"{name} must have shape {shape}, got {got}")
         if m.dtype != np.bool_:
             raise ValueError(f"{name} must be a boolean mask, got {m.dtype}")
+    unknown = [f for f in flags if f not in FLAGS]
+    if unknown:
+        raise ValueError(f"unknown summary flag(s) {unknown}; known: {', '.join(FLAGS)}")
     c = None
     if c_usf is not None:
         cf = float(c_usf)
@@ -134,10 +159,12 @@ def summarize_frame(
     n = int(np.count_nonzero(use))
     n_gas = int(np.count_nonzero(gas_mask))
     if n == 0:
-        return GasSummary(False, 0, n_gas, None, None, None, c)
+        return GasSummary(False, 0, n_gas, None, None, None, c,
+                          tuple(dict.fromkeys((*flags, "no_gas"))))
     mean = velocity[use].astype(np.float64).mean(axis=0)
     angles = directional_angles(mean)
     vx, vy, vz = (float(x) for x in mean)
     speed = float(np.linalg.norm(mean))
     # An exactly zero mean has a speed (0) but no direction: flagged, angles None.
-    return GasSummary(angles is not None, n, n_gas, (vx, vy, vz), speed, angles, c)
+    return GasSummary(angles is not None, n, n_gas, (vx, vy, vz), speed, angles, c,
+                      tuple(flags))

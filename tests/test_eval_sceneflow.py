@@ -11,7 +11,7 @@ import cv2
 import pytest
 
 from appliance import cli
-from appliance.commands import eval_sceneflow
+from appliance.evaluation import sceneflow as eval_sceneflow
 from processing.synthetic import write_sequence
 from processing.synthetic.render import StereoCamera
 from processing.synthetic.sequences import generate_sequence, preset_table2_1

@@ -15,6 +15,9 @@ from typing import Any
 from appliance.cli import CommandError
 from appliance.progress import ProgressBar
 
+#: The calibration file written beside each sequence's frames.
+CALIBRATION_NAME = "calibration.yaml"
+
 _PRESET_HELP = (
     "preset to generate (repeatable): table2 (= table2_1, table2_2, table2_3; the default), "
     "table2_1, table2_2, table2_3, field"
@@ -29,7 +32,9 @@ def register(root: argparse._SubParsersAction) -> None:
         description=(
             "Simulate a buoyant gas release (Stable Fluids), render it into a left and a right "
             "OGI camera (Eq. 1) and write raw uint16 frames with the left camera's ground truth "
-            "(3D velocity V*, 3D position, gas mask, column density) to OUT/<preset>/. "
+            "(3D velocity V*, 3D position, gas mask, column density) to OUT/<preset>/, with the "
+            "matching calibration file (calibration.yaml: geometry, lens distortion, both "
+            "cameras' characteristic curves). "
             "Without --preset, the three sequences resembling the paper's Table 2 are written."
         ),
     )
@@ -56,10 +61,21 @@ def register(root: argparse._SubParsersAction) -> None:
                        help="std. dev. of a random per-frame shift of each camera, px (default 0)")
     noise.add_argument("--radiometric-mismatch", action="store_true",
                        help="right camera with 4%% more gain and 150 counts more offset")
+    noise.add_argument("--gain-mismatch", type=float, default=0.0, metavar="FRACTION",
+                       help="right camera's relative gain excess, e.g. 0.02-0.08, with 150 "
+                            "counts more offset (overrides the 4%% of --radiometric-mismatch)")
     noise.add_argument("--lens-k1", type=float, default=0.0, metavar="K1",
                        help="radial lens distortion k1 of both cameras (default 0)")
     noise.add_argument("--moving-object", action="store_true",
                        help="a warm disk moving behind the gas")
+    scene = p.add_argument_group("scene")
+    scene.add_argument("--background", choices=("uniform", "plant", "sky"), default="uniform",
+                       help="what lies behind the gas: a uniform black body (default, the "
+                            "paper's scenes), a textured wall of plant equipment 12 m away, "
+                            "or clear sky")
+    scene.add_argument("--gas-temperature", type=float, metavar="K",
+                       help="gas temperature in K (default 285 against a 300 K background; "
+                            "e.g. 297 for a low-contrast scene)")
     p.add_argument("--force", action="store_true",
                    help="overwrite sequences that already exist in OUT")
     p.set_defaults(func=run)
@@ -84,7 +100,7 @@ def _expand_presets(names: list[str] | None) -> list[str]:
 def _build_config(name: str, args: argparse.Namespace) -> Any:
     from dataclasses import replace
 
-    from processing.synthetic.render import MovingObject
+    from processing.synthetic.imaging import Background, MovingObject
     from processing.synthetic.sequences import RenderOptions, preset
 
     kwargs: dict[str, Any] = {}
@@ -126,10 +142,17 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
         if args.necl <= 0:
             raise ValueError(f"--necl must be > 0, got {args.necl}")
         cfg = replace(cfg, necl_ppm_m=args.necl)
+    if args.gas_temperature is not None:
+        if not 150.0 <= args.gas_temperature <= 400.0:
+            raise ValueError(f"--gas-temperature must be within 150..400 K, got "
+                             f"{args.gas_temperature}")
+        cfg = replace(cfg, radiometry=replace(cfg.radiometry, t_gas_k=args.gas_temperature))
+    cfg = replace(cfg, background=Background(kind=args.background, seed=cfg.seed))
     opts = RenderOptions(
         noise_netd_k=args.noise,
         jitter_px=args.jitter,
         radiometric_mismatch=args.radiometric_mismatch,
+        gain_mismatch=args.gain_mismatch,
         lens_k1=args.lens_k1,
         moving_object=MovingObject() if args.moving_object else None,
     )
@@ -140,6 +163,8 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Generate the requested sequences; print one summary line per sequence."""
+    from processing.calibration.model import save_calibration
+    from processing.synthetic.config import synthetic_calibration
     from processing.synthetic.sequences import (
         frame_characteristics,
         generate_sequence,
@@ -176,6 +201,9 @@ def run(args: argparse.Namespace) -> int:
         meta = cfg.meta()
         meta["statistics"] = stats
         write_meta(target, meta)
+        # The calibration a field system would have (curves, lens distortion): evaluating
+        # with it shows what a site's calibration removes.
+        save_calibration(target / CALIBRATION_NAME, synthetic_calibration(cfg))
         ang = ", ".join(f"{a:.1f}" for a in stats["angles_deg"])
         print(
             f"{cfg.name}: {cfg.n_frames} frames -> {target}"

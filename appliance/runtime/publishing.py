@@ -99,7 +99,7 @@ class ResultPublisher:
         t1 = res.t_mono_ns[1]
         s = res.summary
         flags = list(s.get("flags", []))
-        if res.rejected_shifts:
+        if res.rejected_shifts and "registration_rejected" not in flags:
             flags.append("registration_rejected")
         summary = {
             "t_mono_ns": t1, "t_wall_ns": self.wall_ns(t1), "pair_index": res.pair_indices[1],

@@ -42,9 +42,23 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numba
 import numpy as np
+
+# The radiometry and camera-effect part of rendering lives in imaging; its names are
+# re-exported here because a renderer's users reach for them together with the geometry.
+from processing.synthetic.imaging import (  # noqa: F401
+    Background,
+    CountsModel,
+    MovingObject,
+    Radiometry,
+    background_radiance,
+    band_radiance,
+    band_radiance_derivative,
+    radiance_image,
+    shift_image,
+    to_counts,
+)
 
 _H_PLANCK = 6.62607015e-34
 _C_LIGHT = 2.99792458e8
@@ -101,38 +115,6 @@ class StereoCamera:
 
 
 @dataclass(frozen=True)
-class CountsModel:
-    """Linear radiometric response of one camera: counts = offset + gain * L (L in W/(m^2 sr))."""
-
-    gain: float = 4.0e5
-    offset: float = 2000.0
-
-
-@dataclass(frozen=True)
-class Radiometry:
-    """Radiometric scene parameters of Eq. 1.
-
-    Parameters
-    ----------
-    t_bg_k, t_gas_k : float
-        Background and gas temperatures in K.
-    alpha_per_ppm_m : float
-        Band-averaged absorption coefficient alpha_g, natural log, per ppm*m (the default is
-        an approximate band average of methane in 3.2-3.4 um).
-    band_um : (float, float)
-        Spectral band of the cameras in um.
-    gas_density_kg_m3 : float
-        Density of the pure gas, to turn kg/m^3 into ppm by volume.
-    """
-
-    t_bg_k: float = 300.0
-    t_gas_k: float = 285.0
-    alpha_per_ppm_m: float = 5.0e-5
-    band_um: tuple[float, float] = (3.2, 3.4)
-    gas_density_kg_m3: float = 0.679
-
-
-@dataclass(frozen=True)
 class Volume:
     """Placement of the simulation grid in the left camera frame (axes aligned).
 
@@ -148,31 +130,6 @@ class Volume:
     origin_m: tuple[float, float, float]
     voxel_m: float
     shape: tuple[int, int, int]
-
-
-@dataclass(frozen=True)
-class MovingObject:
-    """A warm/cold disk in a plane of constant Z behind the gas, moving in X (optional)."""
-
-    z_m: float = 4.0
-    radius_m: float = 0.25
-    center_m: tuple[float, float] = (-0.6, 0.0)
-    velocity_m_s: tuple[float, float] = (1.0, 0.0)
-    t_k: float = 310.0
-
-
-def band_radiance(t_k: float, band_um: tuple[float, float] = (3.2, 3.4)) -> float:
-    """Black-body radiance integrated over ``band_um``, W/(m^2 sr) (Planck's law)."""
-    lam = np.linspace(band_um[0], band_um[1], 401) * 1e-6
-    spectral = 2 * _H_PLANCK * _C_LIGHT**2 / lam**5 / np.expm1(
-        _H_PLANCK * _C_LIGHT / (lam * _K_BOLTZMANN * t_k)
-    )
-    return float(np.sum(0.5 * (spectral[1:] + spectral[:-1]) * np.diff(lam)))  # trapezoid rule
-
-
-def band_radiance_derivative(t_k: float, band_um: tuple[float, float] = (3.2, 3.4)) -> float:
-    """d L_BB / dT at ``t_k``, W/(m^2 sr K) (central difference), for NETD-like noise."""
-    return (band_radiance(t_k + 0.05, band_um) - band_radiance(t_k - 0.05, band_um)) / 0.1
 
 
 # --------------------------------------------------------------------------------------------
@@ -226,13 +183,18 @@ def project_points(camera: StereoCamera, xyz: np.ndarray) -> tuple[np.ndarray, n
     return out[0], out[1]
 
 
-def ray_directions(camera: StereoCamera) -> np.ndarray:
+def ray_directions(camera: StereoCamera,
+                   shift_px: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     """Direction of each pixel's ray (x_n, y_n, 1), float64 (H, W, 3), lens distortion removed.
 
-    A point at depth Z on the ray of pixel (x, y) is ``Z * dirs[y, x]``.
+    A point at depth Z on the ray of pixel (x, y) is ``Z * dirs[y, x]``. ``shift_px`` = (dx,
+    dy) moves the detector so that the image content is displaced by +shift (camera jitter):
+    pixel (x, y) then sees what the unshifted pixel (x - dx, y - dy) sees.
     """
     camera.validate()
     ys, xs = np.mgrid[0 : camera.height, 0 : camera.width].astype(float)
+    xs -= float(shift_px[0])
+    ys -= float(shift_px[1])
     xd = (xs - camera.cx) / camera.s_px
     yd = (ys - camera.cy) / camera.s_px
     if camera.k1 or camera.k2:
@@ -415,56 +377,6 @@ def column_integrals(
         np.ascontiguousarray(dirs, dtype=float), h, step_cells, column, zsum, vsum,
     )
     return column, zsum, (vsum if with_v else None)
-
-
-# --------------------------------------------------------------------------------------------
-# images
-
-
-def background_radiance(
-    camera: StereoCamera,
-    radiometry: Radiometry,
-    dirs: np.ndarray,
-    camera_x_m: float,
-    t_s: float,
-    moving_object: MovingObject | None,
-) -> np.ndarray:
-    """Background radiance per pixel (H, W) float64 W/(m^2 sr): the uniform black body, and the
-    moving object's black body where a ray hits it."""
-    bg = np.full(dirs.shape[:2], band_radiance(radiometry.t_bg_k, radiometry.band_um))
-    if moving_object is not None:
-        mo = moving_object
-        x = camera_x_m + mo.z_m * dirs[..., 0]
-        y = mo.z_m * dirs[..., 1]
-        cxo = mo.center_m[0] + mo.velocity_m_s[0] * t_s
-        cyo = mo.center_m[1] + mo.velocity_m_s[1] * t_s
-        hit = (x - cxo) ** 2 + (y - cyo) ** 2 <= mo.radius_m**2
-        bg[hit] = band_radiance(mo.t_k, radiometry.band_um)
-    return bg
-
-
-def radiance_image(
-    column_ppm_m: np.ndarray, background: np.ndarray, radiometry: Radiometry
-) -> np.ndarray:
-    """Eq. 1: ``L = L_bg tau + L_gas (1 - tau)``, ``tau = exp(-alpha_g * column)``; (H, W)."""
-    tau = np.exp(-radiometry.alpha_per_ppm_m * column_ppm_m)
-    l_gas = band_radiance(radiometry.t_gas_k, radiometry.band_um)
-    return background * tau + l_gas * (1.0 - tau)
-
-
-def shift_image(img: np.ndarray, shift_xy: tuple[float, float]) -> np.ndarray:
-    """Translate an image by a sub-pixel (dx, dy) (bilinear, edges replicated) - frame jitter."""
-    m = np.array([[1.0, 0.0, shift_xy[0]], [0.0, 1.0, shift_xy[1]]])
-    return cv2.warpAffine(
-        img.astype(np.float64), m, (img.shape[1], img.shape[0]),
-        flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE,
-    )
-
-
-def to_counts(radiance: np.ndarray, model: CountsModel) -> np.ndarray:
-    """Raw uint16 counts ``round(offset + gain * L)``, clipped to [0, 65535]."""
-    counts = np.rint(model.offset + model.gain * radiance)
-    return np.clip(counts, 0, 65535).astype(np.uint16)
 
 
 @dataclass

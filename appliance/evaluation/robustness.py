@@ -1,0 +1,377 @@
+"""Core of ``ogiflow eval robustness``: scene-flow accuracy under field disturbances (issue 12).
+
+The matrix crosses *scenes* (one fluid simulation each: a seed, a wind, a release rate;
+the appliance's ``field`` geometry, plume 5.5 m away, b = 0.3 m, 30 Hz) with *conditions*
+(camera effects rendered after the fluid step: background, NETD noise, jitter, gain
+mismatch with or without the site's radiometric calibration, a moving warm object, a small
+gas-background temperature difference). Each scene's gas is simulated once and cached
+(:func:`gas_frames`); every condition renders those frames with its own camera effects
+(:class:`processing.synthetic.cameras.StereoRenderer`) and runs the chain on every triple
+(:func:`appliance.evaluation.sceneflow.evaluate_frames`, proposed method only).
+
+:data:`DEFAULT_MATRIX` is the named matrix the README's table comes from. A condition is
+``realistic`` when its strengths lie within the issue's acceptance set (NETD <= 0.03 K,
+jitter <= 0.3 px, calibrated gain, one moving warm object, a textured plant background);
+:func:`acceptance` checks those against the targets (mean RMVE and AEMV <= 12 % / 12 deg
+per condition, no scene worse than 20 % / 20 deg).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from appliance.evaluation.sceneflow import Log, Metrics, aggregate, evaluate_frames
+from processing.chain import ChainParameters, StereoGeometry
+from processing.synthetic.cameras import GasFrame, StereoRenderer
+from processing.synthetic.config import RenderOptions, SequenceConfig, synthetic_calibration
+from processing.synthetic.imaging import Background, MovingObject
+from processing.synthetic.presets import preset_field
+from processing.synthetic.render import GroundTruth
+from processing.synthetic.sequences import SyntheticStereoScene
+
+#: Bump when the simulation or the cache layout changes (invalidates cached gas frames).
+CACHE_VERSION = 1
+
+#: The warm object of the matrix: a 0.4 m disk 8 m away (behind the plume at 5.5 m, in
+#: front of the plant wall at 12 m), 10 K above ambient, crossing the view at 1.2 m/s
+#: (~4 px per frame).
+WARM_OBJECT = MovingObject(z_m=8.0, radius_m=0.4, center_m=(-0.9, 0.1),
+                           velocity_m_s=(1.2, 0.0), t_k=310.0)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One fluid simulation of the ``field`` preset."""
+
+    seed: int
+    wind_m_s: tuple[float, float, float]
+    release_rate_g_s: float = 3.0
+
+    @property
+    def name(self) -> str:
+        w = ",".join(f"{x:g}" for x in self.wind_m_s)
+        return f"s{self.seed}_w({w})_q{self.release_rate_g_s:g}"
+
+
+@dataclass(frozen=True)
+class Condition:
+    """Camera effects of one row of the matrix.
+
+    ``gain_mismatch`` is the right camera's relative gain excess; ``calibrated`` gives the
+    chain the characteristic curves the simulator's calibration file holds (so a mismatch
+    is corrected, as on a calibrated site). ``t_gas_k`` overrides the gas temperature
+    (285 K against 300 K by default: a small difference is the low-contrast case);
+    ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation).
+    """
+
+    name: str
+    background: str = "plant"
+    noise_netd_k: float = 0.0
+    jitter_px: float = 0.0
+    gain_mismatch: float = 0.0
+    calibrated: bool = True
+    moving_object: bool = False
+    t_gas_k: float | None = None
+    release_rate_g_s: float | None = None
+    realistic: bool = True
+
+
+@dataclass(frozen=True)
+class Matrix:
+    """Scenes x conditions, with the frame count and fluid resolution of every scene."""
+
+    name: str
+    scenes: tuple[Scene, ...]
+    conditions: tuple[Condition, ...]
+    n_frames: int = 14
+    voxel_m: float = 0.05
+
+
+_SCENES = (Scene(7, (1.5, 0.0, 0.0)), Scene(7, (1.0, 0.0, 1.0)),
+           Scene(11, (1.5, 0.0, 0.0)), Scene(11, (1.0, 0.0, 1.0)))
+
+DEFAULT_MATRIX = Matrix(
+    name="default",
+    scenes=_SCENES,
+    conditions=(
+        Condition("ideal"),
+        Condition("noise 0.015 K", noise_netd_k=0.015),
+        Condition("noise 0.03 K", noise_netd_k=0.03),
+        Condition("noise 0.05 K", noise_netd_k=0.05, realistic=False),
+        Condition("jitter 0.1 px", jitter_px=0.1),
+        Condition("jitter 0.2 px", jitter_px=0.2),
+        Condition("jitter 0.3 px", jitter_px=0.3),
+        Condition("jitter 0.5 px", jitter_px=0.5, realistic=False),
+        Condition("gain 2 % uncal.", gain_mismatch=0.02, calibrated=False, realistic=False),
+        Condition("gain 4 % uncal.", gain_mismatch=0.04, calibrated=False, realistic=False),
+        Condition("gain 8 % uncal.", gain_mismatch=0.08, calibrated=False, realistic=False),
+        Condition("gain 4 % cal.", gain_mismatch=0.04),
+        Condition("gain 8 % cal.", gain_mismatch=0.08),
+        Condition("moving object", moving_object=True),
+        Condition("low contrast 3 K", t_gas_k=297.0, realistic=False),
+        Condition("low contrast 3 K, noise 0.03 K", t_gas_k=297.0, noise_netd_k=0.03,
+                  realistic=False),
+        Condition("low release 1 g/s", release_rate_g_s=1.0, realistic=False),
+        Condition("all realistic", noise_netd_k=0.03, jitter_px=0.3, gain_mismatch=0.04,
+                  moving_object=True),
+        Condition("all strong", noise_netd_k=0.05, jitter_px=0.5, gain_mismatch=0.08,
+                  calibrated=False, moving_object=True, realistic=False),
+        Condition("sky ideal", background="sky", realistic=False),
+        Condition("sky jitter 0.2 px", background="sky", jitter_px=0.2, realistic=False),
+        Condition("sky all realistic", background="sky", noise_netd_k=0.03, jitter_px=0.3,
+                  gain_mismatch=0.04, moving_object=True, realistic=False),
+    ),
+)
+
+#: A two-scene, few-frame matrix for a quick look and for tests.
+QUICK_MATRIX = Matrix(
+    name="quick",
+    scenes=(Scene(7, (1.0, 0.0, 1.0)),),
+    conditions=(Condition("ideal"), Condition("jitter 0.3 px", jitter_px=0.3),
+                Condition("moving object", moving_object=True)),
+    n_frames=6,
+    voxel_m=0.08,
+)
+
+MATRICES = {m.name: m for m in (DEFAULT_MATRIX, QUICK_MATRIX)}
+
+#: Iterations of the joint d/d' solver (Eq. 6) for the field scenes, passed as the chain's
+#: ``disparity_options``: one more warp and inner iteration on the coarse levels and more at
+#: the finest level than the solver's defaults. With the defaults d' came out short on
+#: out-of-plane wind (V_Z 0.2-0.6 m/s for 0.9 m/s: the coarse levels had not converged);
+#: these recover it (ideal RMVE 15.5 -> 4.5 % on one scene) for about 25 % more chain time.
+#: Not the chain's default: on the paper's Table-2 sequence 3 (1 ms frames) they raised
+#: RMVE from 2.4 to 4.9 % (AEMV fell from 6.9 to 2.2 deg). A site sets them in
+#: ``processing.parameters.disparity_options``.
+FIELD_DISPARITY_OPTIONS: dict[str, int] = {"n_warps": 3, "n_inner": 4, "n_inner_finest": 6,
+                                           "n_sor": 15}
+
+#: Acceptance targets over the realistic conditions (issue 12).
+TARGET_MEAN = {"rmve": 12.0, "aemv": 12.0}
+TARGET_WORST = {"rmve": 20.0, "aemv": 20.0}
+
+
+def scene_config(scene: Scene, matrix: Matrix,
+                 release_rate_g_s: float | None = None) -> SequenceConfig:
+    """The ``field`` preset of one scene (no camera effect yet)."""
+    rate = scene.release_rate_g_s if release_rate_g_s is None else release_rate_g_s
+    return preset_field(n_frames=matrix.n_frames, wind_m_s=scene.wind_m_s,
+                        release_rate_g_s=rate, seed=scene.seed, voxel_m=matrix.voxel_m)
+
+
+def condition_config(base: SequenceConfig, cond: Condition) -> SequenceConfig:
+    """``base`` with the camera effects of ``cond``."""
+    opts = RenderOptions(noise_netd_k=cond.noise_netd_k, jitter_px=cond.jitter_px,
+                         gain_mismatch=cond.gain_mismatch,
+                         moving_object=WARM_OBJECT if cond.moving_object else None)
+    rad = base.radiometry
+    if cond.t_gas_k is not None:
+        rad = replace(rad, t_gas_k=cond.t_gas_k)
+    return replace(base, options=opts, radiometry=rad,
+                   background=Background(kind=cond.background, seed=base.seed))
+
+
+def condition_geometry(config: SequenceConfig, cond: Condition) -> StereoGeometry:
+    """What the chain knows of the cameras: the simulator's calibration file, or (for an
+    uncalibrated condition) the ideal geometry without characteristic curves."""
+    calib = synthetic_calibration(config)
+    if not cond.calibrated:
+        calib = replace(calib, radiometric=None)
+    return StereoGeometry.from_calibration(calib, rectify=False)
+
+
+def chain_parameters(config: SequenceConfig) -> ChainParameters:
+    """The chain's parameters for a field scene, as a site would set them.
+
+    Registration is on (the daemon's default). The gas depth band is the simulation
+    volume's: d0 = s b / Z_far (the farthest gas), searched over 64 px. The joint solver
+    runs :data:`FIELD_DISPARITY_OPTIONS`.
+    """
+    z_far = config.volume_origin_m[2] + config.fluid.shape[0] * config.fluid.voxel_m
+    cam = config.effective_camera()
+    d0 = float(np.floor(cam.s_px * cam.b_m / z_far))
+    return ChainParameters(d0=d0, sgm_num_disparities=64,
+                           disparity_options=dict(FIELD_DISPARITY_OPTIONS))
+
+
+# ---------------------------------------------------------------------------- gas cache
+
+
+def _cache_key(config: SequenceConfig) -> str:
+    meta = config.meta()
+    for k in ("options", "background", "radiometry", "counts_model"):
+        meta.pop(k, None)
+    meta["version"] = CACHE_VERSION
+    text = json.dumps(meta, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _save_gas(path: Path, gas: GasFrame) -> None:
+    gt = gas.truth
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, index=gas.index, t_s=gas.t_s,
+                        column_left=gas.column_left.astype(np.float32),
+                        column_right=gas.column_right.astype(np.float32),
+                        velocity=gt.velocity, position=gt.position, mask=gt.mask,
+                        column=gt.column_density_ppm_m)
+    tmp.replace(path)
+
+
+def _load_gas(path: Path) -> GasFrame:
+    with np.load(path) as z:
+        truth = GroundTruth(velocity=z["velocity"], position=z["position"], mask=z["mask"],
+                            column_density_ppm_m=z["column"])
+        return GasFrame(index=int(z["index"]), t_s=float(z["t_s"]),
+                        column_left=z["column_left"].astype(np.float64),
+                        column_right=z["column_right"].astype(np.float64), truth=truth)
+
+
+def gas_frames(config: SequenceConfig, cache_dir: Path | None,
+               log: Log | None = None) -> list[GasFrame]:
+    """The gas of every frame of ``config`` (fluid + ray marching), cached per scene.
+
+    Camera effects are not part of the key: every condition of a scene shares one
+    simulation.
+    """
+    folder = None if cache_dir is None else cache_dir / f"gas-{_cache_key(config)}"
+    paths = [] if folder is None else [folder / f"gas_{i:04d}.npz"
+                                       for i in range(config.n_frames)]
+    if paths and all(p.is_file() for p in paths):
+        return [_load_gas(p) for p in paths]
+    if log is not None:
+        log(f"  simulating {config.n_frames} frames of the gas (cached afterwards)")
+    scene = SyntheticStereoScene(config)
+    frames = [scene.next_gas() for _ in range(config.n_frames)]
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+        for p, g in zip(paths, frames, strict=True):
+            _save_gas(p, g)
+    return frames
+
+
+# ---------------------------------------------------------------------------- evaluation
+
+ParamsHook = Callable[[ChainParameters], ChainParameters]
+
+
+def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, *,
+                       params_hook: ParamsHook | None = None,
+                       log: Log | None = None) -> Metrics:
+    """Every scene of ``matrix`` under ``cond``: per-scene summaries and the pooled one.
+
+    Returns
+    -------
+    {"condition": asdict(cond), "scenes": {name: summary}, "pooled": aggregate over every
+    triple of every scene, "flags": triples per chain flag, "seconds"}
+    """
+    start = time.perf_counter()
+    scenes: dict[str, Metrics] = {}
+    pooled: list[Metrics] = []
+    flags: dict[str, int] = {}
+    for scene in matrix.scenes:
+        base = scene_config(scene, matrix, cond.release_rate_g_s)
+        gas = gas_frames(base, cache_dir, log)
+        cfg = condition_config(base, cond)
+        renderer = StereoRenderer(cfg)
+        frames = [renderer.render(g) for g in gas]
+        params = chain_parameters(cfg)
+        if params_hook is not None:
+            params = params_hook(params)
+        summary, _ = evaluate_frames(frames, condition_geometry(cfg, cond), params,
+                                     methods=("proposed",), name=scene.name)
+        scenes[scene.name] = summary["proposed"]
+        pooled.extend(summary["proposed"]["frames"])
+        for k, v in summary["flags"].items():
+            flags[k] = flags.get(k, 0) + v
+        if log is not None:
+            p = summary["proposed"]
+            log(f"  {cond.name:<20} {scene.name:<22} RMVE {_f(p['rmve'])} % "
+                f"AEMV {_f(p['aemv'])} deg  false gas {_f(p['false_gas'], 2)}")
+    return {"condition": asdict(cond), "scenes": scenes, "pooled": aggregate(pooled),
+            "flags": flags, "seconds": time.perf_counter() - start}
+
+
+def run_matrix(matrix: Matrix, cache_dir: Path | None, *,
+               conditions: Sequence[str] | None = None,
+               params_hook: ParamsHook | None = None,
+               log: Log | None = None) -> dict[str, Metrics]:
+    """:func:`evaluate_condition` for every (selected) condition, in matrix order."""
+    chosen = matrix.conditions
+    if conditions:
+        names = {c.name for c in matrix.conditions}
+        unknown = [c for c in conditions if c not in names]
+        if unknown:
+            raise ValueError(f"unknown condition(s) {unknown}; the {matrix.name} matrix has: "
+                             f"{', '.join(sorted(names))}")
+        chosen = tuple(c for c in matrix.conditions if c.name in conditions)
+    out: dict[str, Metrics] = {}
+    for cond in chosen:
+        if log is not None:
+            log(f"condition {cond.name} ...")
+        out[cond.name] = evaluate_condition(matrix, cond, cache_dir,
+                                            params_hook=params_hook, log=log)
+    return out
+
+
+def _f(v: float | None, digits: int = 1) -> str:
+    return "n/a" if v is None else f"{v:.{digits}f}"
+
+
+def _scene_extremes(res: Metrics, key: str) -> float | None:
+    vals = [s[key] for s in res["scenes"].values() if s[key] is not None]
+    return max(vals) if vals else None
+
+
+def format_table(results: dict[str, Metrics]) -> str:
+    """One row per condition: pooled mean +- std of RMVE and AEMV, the worst scene's mean,
+    3D AEE, SA, the false-gas fraction and the chain's most frequent flags."""
+    head = (f"{'condition':<20} {'real':>4} {'RMVE/%':>12} {'worst':>6} {'AEMV/deg':>12} "
+            f"{'worst':>6} {'AEE/mm/s':>9} {'SA/%':>6} {'false':>6}  flags (triples)")
+    lines = [head, "-" * len(head)]
+    for name, res in results.items():
+        p = res["pooled"]
+        fl = ", ".join(f"{k} {v}" for k, v in sorted(res["flags"].items(),
+                                                     key=lambda kv: -kv[1]))
+        lines.append(
+            f"{name:<20} {'yes' if res['condition']['realistic'] else 'no':>4} "
+            f"{_f(p['rmve']):>5}+-{_f(p['rmve_std']):<5} {_f(_scene_extremes(res, 'rmve')):>6} "
+            f"{_f(p['aemv']):>5}+-{_f(p['aemv_std']):<5} {_f(_scene_extremes(res, 'aemv')):>6} "
+            f"{_f(p['aee_3d_mm_s'], 0):>9} {_f(p['sa']):>6} {_f(p['false_gas'], 2):>6}  {fl}")
+    return "\n".join(lines)
+
+
+def acceptance(results: dict[str, Metrics]) -> list[str]:
+    """The realistic conditions that miss a target, one line each (empty: all met)."""
+    misses = []
+    for name, res in results.items():
+        if not res["condition"]["realistic"]:
+            continue
+        p = res["pooled"]
+        for key, limit in TARGET_MEAN.items():
+            if p[key] is None or p[key] > limit:
+                misses.append(f"{name}: mean {key.upper()} {_f(p[key])} > {limit:g}")
+        for key, limit in TARGET_WORST.items():
+            worst = _scene_extremes(res, key)
+            if worst is None or worst > limit:
+                misses.append(f"{name}: worst scene {key.upper()} {_f(worst)} > {limit:g}")
+    return misses
+
+
+def public(results: dict[str, Metrics]) -> dict[str, Any]:
+    """The JSON document: per condition the pooled and per-scene summaries, flags and time
+    (per-triple values left out: 22 conditions x 4 scenes of them make a megabyte)."""
+    out: dict[str, Any] = {}
+    for name, res in results.items():
+        pooled = {k: v for k, v in res["pooled"].items() if k != "frames"}
+        scenes = {sc: {k: v for k, v in summ.items() if k != "frames"}
+                  for sc, summ in res["scenes"].items()}
+        out[name] = {**res, "pooled": pooled, "scenes": scenes}
+    return out

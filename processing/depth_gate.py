@@ -1,0 +1,187 @@
+"""Depth-band gate: remove moving things that are not at the gas's depth (beyond the paper).
+
+The paper (Sec. 5.2, 6) names moving objects - flies, trees, clouds, vehicles - as what its
+segmentation takes for gas. They also corrupt the velocity of the gas itself: a warm object
+has far more contrast in the differential images than the faint gas, and the smoothness of
+the joint disparity solver (Eq. 6) spreads the object's disparity over the whole image
+(measured: an object at 8 m pulled the disparity of gas at 5.5 m from 42 to 29 px).
+
+The site knows where the gas can be: between Z_near and Z_far, i.e. disparities in the band
+[d_min, d_max] = [s b / Z_far, s b / Z_near] (the chain's ``d0`` and ``d0 +
+sgm_num_disparities``). A wall, a tree or a vehicle behind the plume, or a fly in front of the
+lens, lies outside the band. So before any solver runs:
+
+1. semi-global matching (:func:`processing.baselines.sgbm_disparity`, uniqueness and
+   left-right checks) of the two t0 differential images over a range wider than the band;
+2. a pixel is *out of band* when SGBM found a reliable disparity outside [d_min - tol,
+   d_max + tol] and the pixel is active (its differential value stands out of the noise);
+3. its partner in the right image is x_R = x_L - d; both masks are dilated by the largest
+   motion expected within a triple, so that the object's edges at t1 are covered too;
+4. the masked pixels of all four differential images are set to "no change" (0.5): the
+   flow, the disparity solver and the segmentation never see the object.
+
+Static things out of band do not appear in differential images at all (unless jitter is
+left over, which this removes as well). Something moving inside the band cannot be told
+from gas by depth; it remains for the segmentation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from processing.baselines import sgbm_disparity
+from processing.preprocess import PreprocessedTriple
+from processing.validation import as_float_image, check_same_shape
+
+#: Multiple of the robust noise spread above which a differential pixel counts as active.
+ACTIVITY_SIGMAS = 4.0
+#: ... and at least this far from "no change" (normalised units): SGBM quantises to 8 bits,
+#: so fainter structure (the gas's thin edges) gives it nothing to match and it returns
+#: spurious small disparities there.
+ACTIVITY_FLOOR = 0.05
+#: Half side of the window that averages out-of-band disparities for the right view's mask,
+#: px, and the out-of-band votes a region needs to be an object (fewer are SGBM outliers).
+VOTE_RADIUS = 7
+MIN_VOTES = 12
+#: An object's region needs this many times more out-of-band than in-band votes.
+MAJORITY = 3.0
+
+
+@dataclass(frozen=True)
+class DepthGate:
+    """Pixels removed by :func:`out_of_band_motion`.
+
+    Attributes
+    ----------
+    left, right : ndarray, shape (H, W), bool
+        Removed pixels of each view (dilated).
+    fraction : float
+        Share of the left image's pixels that were found out of band (before dilation).
+    """
+
+    left: np.ndarray
+    right: np.ndarray
+    fraction: float
+
+
+def _robust_spread(a: np.ndarray) -> float:
+    """1.4826 * median |a - median(a)| of every 2nd pixel (the noise of a mostly still image)."""
+    sub = a[::2, ::2]
+    return 1.4826 * float(np.median(np.abs(sub - np.median(sub)))) + 1e-6
+
+
+def out_of_band_motion(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    d_min: float,
+    d_max: float,
+    tolerance_px: float = 3.0,
+    dilate_px: int = 8,
+) -> DepthGate:
+    """Find moving image regions whose stereo disparity lies outside the gas's band.
+
+    Parameters
+    ----------
+    left, right : ndarray, shape (H, W), float32
+        Normalised differential images of the left and right camera at t0 (0.5 = no change).
+    d_min, d_max : float
+        Disparity band of the gas, px (x_R = x_L - d), 0 <= d_min < d_max.
+    tolerance_px : float
+        Margin around the band, px (SGBM's error and the gas's own depth spread).
+    dilate_px : int
+        Radius by which the masks grow: the largest image motion within a triple, px.
+
+    Returns
+    -------
+    DepthGate
+    """
+    il = as_float_image(left, "left")
+    ir = as_float_image(right, "right")
+    check_same_shape(il, ir, "left", "right")
+    if not 0 <= d_min < d_max:
+        raise ValueError(f"need 0 <= d_min < d_max, got {d_min}, {d_max}")
+    h, w = il.shape
+    hi = d_max + tolerance_px + 16.0
+    n_disp = int(16 * np.ceil(hi / 16.0))
+    n_disp = min(n_disp, 16 * ((w - 8) // 16))
+    d, valid = sgbm_disparity(il, ir, min_disparity=0, num_disparities=n_disp)
+    active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * _robust_spread(il), ACTIVITY_FLOOR)
+    measured = valid & active
+    outside = measured & ((d < d_min - tolerance_px) | (d > d_max + tolerance_px))
+    inside = measured & ~outside
+    # SGBM finds reliable disparities only at part of an object's pixels: every connected
+    # region of active pixels takes the verdict of the majority of its measured pixels.
+    # (regions grown from a lower threshold, so an object's faint rims join its body)
+    weak = np.abs(il - 0.5) > 0.4 * ACTIVITY_FLOOR
+    near_active = cv2.dilate(weak.astype(np.uint8), np.ones((7, 7), np.uint8))
+    n_labels, labels = cv2.connectedComponents(near_active, connectivity=8)
+    n_out = np.bincount(labels[outside], minlength=n_labels)
+    n_in = np.bincount(labels[inside], minlength=n_labels)
+    # A clear majority: SGBM on noise (low contrast) scatters over the whole search range
+    # and would otherwise put about a third of a noise region out of band.
+    reject = (n_out >= MIN_VOTES) & (n_out > MAJORITY * n_in)
+    reject[0] = False  # label 0: the still background
+    out = reject[labels]
+    win = (2 * VOTE_RADIUS + 1, 2 * VOTE_RADIUS + 1)
+    # Each removed pixel's partner in the right view, at the local out-of-band disparity.
+    d_sum = cv2.boxFilter(np.where(outside, d, 0).astype(np.float32), -1, win,
+                          normalize=False)
+    n_near = cv2.boxFilter(outside.astype(np.float32), -1, win, normalize=False)
+    # where no out-of-band disparity is near, the region's median stands in
+    d_region = np.zeros(n_labels, np.float32)
+    for lab in np.flatnonzero(reject):
+        d_region[lab] = float(np.median(d[outside & (labels == lab)]))
+    d_local = np.where(n_near > 0, d_sum / np.maximum(n_near, 1.0), d_region[labels])
+    ys, xs = np.nonzero(out)
+    right_mask = np.zeros((h, w), np.uint8)
+    xr = np.rint(xs - d_local[ys, xs]).astype(int)
+    keep = (xr >= 0) & (xr < w)
+    right_mask[ys[keep], xr[keep]] = 1
+    k = 2 * int(dilate_px) + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    left_d = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
+    right_d = cv2.dilate(right_mask, kernel).astype(bool)
+    return DepthGate(left_d, right_d, float(out.mean()))
+
+
+def suppress(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """A copy of a normalised differential image with ``mask`` set to "no change" (0.5)."""
+    out = np.array(diff, dtype=np.float32, copy=True)
+    out[mask] = 0.5
+    return out
+
+
+def apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate,
+                scale: float) -> tuple[PreprocessedTriple, PreprocessedTriple, float]:
+    """Remove the gate's pixels from both views of a triple and renormalise without them.
+
+    A warm object has far more contrast than the gas and sets the normalisation scale
+    (0.999 quantile of |D|); left in, it would squeeze the gas into a few grey levels
+    around 0.5 where the flow sees no signal. The triple is rescaled to the quantile of
+    the remaining pixels (the map to [0, 1] is affine, so rescaling the normalised images
+    equals normalising anew), and the raw differences handed to the scale tracker lose the
+    removed pixels too.
+    """
+    raws = [np.where(gate.left, np.float32(0), pl.raw0), np.where(gate.left, np.float32(0),
+            pl.raw1), np.where(gate.right, np.float32(0), pr.raw0),
+            np.where(gate.right, np.float32(0), pr.raw1)]
+    q = float(np.quantile(np.abs(np.concatenate([r[::2, ::2].ravel() for r in raws])), 0.999))
+    new_scale = q if 0 < q < scale else scale
+    factor = np.float32(scale / new_scale)
+
+    def clean(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        out = suppress(diff, mask)
+        if factor != 1:
+            out = np.clip((out - np.float32(0.5)) * factor + np.float32(0.5), 0.0, 1.0)
+        return out.astype(np.float32, copy=False)
+
+    pl = dataclasses.replace(pl, diff0=clean(pl.diff0, gate.left),
+                             diff1=clean(pl.diff1, gate.left), raw0=raws[0], raw1=raws[1])
+    pr = dataclasses.replace(pr, diff0=clean(pr.diff0, gate.right),
+                             diff1=clean(pr.diff1, gate.right), raw0=raws[2], raw1=raws[3])
+    return pl, pr, new_scale
