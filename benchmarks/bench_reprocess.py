@@ -47,7 +47,8 @@ def _cli(*args: str) -> float:
 def _record(n: int, duration: float, where: Path) -> list[Path]:
     for i in range(n):
         _cli("run", "--duration", str(duration), "--live", "off", "--record-dir",
-             str(where / f"appliance-{i}"), "--set", "processing.enabled=false")
+             str(where / f"appliance-{i}"), "--set", "processing.enabled=false",
+             "--set", "recording.split=false")
     return sorted(where.glob("appliance-*/ogiflow-*.mcap"))
 
 

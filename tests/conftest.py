@@ -35,4 +35,7 @@ def scene_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 #: Config overrides of a small, coarse simulated scene (fast to render, still a real plume).
-SMALL_SCENE = [("simulation.frames", 24), ("simulation.voxel_m", 0.12)]
+# Whole-daemon tests read one set of files: the earlier single-folder recording layout (the
+# split retention layout has its own tests in test_retention.py).
+SMALL_SCENE = [("simulation.frames", 24), ("simulation.voxel_m", 0.12),
+               ("recording.split", False)]

@@ -233,7 +233,8 @@ def test_option_keys_protocols_and_ports_are_checked_all_at_once() -> None:
     assert "anemometer.protocol: unknown anemometer protocol 'gil' (did you mean 'gill'?)" \
         in text
     assert "anemometer.options.rate_hx" in text and "did you mean 'rate_hz'?" in text
-    assert "processing.parameters: unknown processing parameter(s) alhpa" in text
+    assert ("processing.parameters: unknown processing parameter(s) 'alhpa' "
+            "(did you mean 'alpha'?)") in text
     assert len(errors) == 4
 
 

@@ -34,7 +34,7 @@ def _opt(doc: str, default: Any = dataclasses.MISSING, *, factory: Any = None, *
     """A dataclass field carrying its documentation and validation rules.
 
     ``rules``: ``min``/``max`` (inclusive), ``gt`` (exclusive lower bound), ``nonempty``,
-    ``shape`` for nested float lists, ``orthonormal`` for rotation matrices.
+    ``polygons`` for lists of image polygons ``[[x, y], ...]`` (at least 3 points each).
     """
     meta = {"doc": doc, **rules}
     if factory is not None:
@@ -146,6 +146,23 @@ class RecordingConfig:
         "processed pair; summaries are recorded for every pair and the raw frames allow "
         "any field to be recomputed with `ogiflow replay`", 10, min=1, max=1_000_000,
     )
+    split: bool = _opt(
+        "retention layout: raw frames (with the raw wind) in <dir>/raw, a rolling buffer "
+        "under raw_quota_gb; results, wind, health and events in <dir>/data under quota_gb; "
+        "every leak event's raw files kept in <dir>/events under events_quota_gb. "
+        "false = everything in <dir> under quota_gb (the layout before)", True)
+    raw_quota_gb: float | None = _opt(
+        "split layout: the rolling buffer of raw frames, GB (about 9 GB an hour)", 100.0,
+        gt=0.0)
+    raw_rotate_s: float = _opt(
+        "split layout: length of one raw file, s (the granularity of event clips)", 30.0,
+        gt=0.0, max=3600.0)
+    events_quota_gb: float | None = _opt(
+        "split layout: the event clips (raw frames of every leak event), GB", 300.0, gt=0.0)
+    pre_trigger_s: float = _opt("raw frames kept before an event's start, s", 30.0,
+                                min=0.0, max=3600.0)
+    post_trigger_s: float = _opt("raw frames kept after an event's end, s", 30.0,
+                                 min=0.0, max=3600.0)
 
 
 @dataclass(frozen=True)
@@ -166,6 +183,10 @@ class LiveConfig:
     queue_size: int = _opt("live items queued before new ones are dropped", 8, min=1,
                            max=10_000)
     jpeg_quality: int = _opt("JPEG quality of live images", 80, min=1, max=100)
+    max_image_hz: float = _opt(
+        "images sent to the viewer at most this often (plots and text with every result): "
+        "a browser decodes a few JPEGs a second, more piles up as display latency", 5.0,
+        gt=0.0, max=60.0)
     server_memory_mb: int = _opt(
         "serve mode: MB of recent live data the viewer server keeps for browsers that "
         "connect later (0 = none); bounds its memory (about 1.6x this + 60 MB)", 64,
@@ -210,6 +231,64 @@ class SimulationConfig:
 
 
 @dataclass(frozen=True)
+class EventsConfig:
+    """Leak events (appliance.runtime.events): when a leak starts, lasts and ends."""
+
+    min_gas_pixels: int = _opt("gas pixels inside the zones for a frame to count", 150,
+                               min=1, max=10_000_000)
+    min_coherence: float = _opt("least coherence (0-1) of the gas motion in a frame", 0.5,
+                                min=0.0, max=1.0)
+    min_rate_g_s: float = _opt("least emission rate of a frame when it is known, g/s", 0.0,
+                               min=0.0)
+    max_source_shift_px: float = _opt("largest distance of a frame's source from the "
+                                      "event's, px", 25.0, gt=0.0)
+    min_duration_s: float = _opt("evidence needed before an event starts, s", 2.0, gt=0.0,
+                                 max=3600.0)
+    start_window_s: float = _opt("window of the start rule, s", 3.0, gt=0.0, max=3600.0)
+    start_fraction: float = _opt("share of positive frames in it to start", 0.6, gt=0.0,
+                                 max=1.0)
+    end_window_s: float = _opt("window of the end rule, s", 6.0, gt=0.0, max=3600.0)
+    end_fraction: float = _opt("share of positive frames in it below which it ends", 0.2,
+                               min=0.0, max=1.0)
+    watch_zones: list[Any] = _opt(
+        "polygons [[x, y], ...] in left-image pixels to watch; empty = the whole image",
+        factory=list, polygons=True)
+    ignore_zones: list[Any] = _opt("polygons to ignore (a vent, a road, a tree)",
+                                   factory=list, polygons=True)
+    rate_window_s: float = _opt("window of the emission-rate average, s", 30.0, gt=0.0,
+                                max=86400.0)
+
+
+@dataclass(frozen=True)
+class MqttAlarmConfig:
+    """MQTT alarms (appliance.alarms.mqtt): status, events and summaries for the plant."""
+
+    enabled: bool = _opt("publish to an MQTT broker", False)
+    host: str = _opt("broker host name or address", "127.0.0.1", nonempty=True)
+    port: int = _opt("broker port", 1883, min=1, max=65535)
+    topic_prefix: str = _opt("topics are <prefix>/status, /event, /summary", "ogiflow",
+                             nonempty=True)
+    client_id: str = _opt("MQTT client id (unique on the broker)", "ogiflow", nonempty=True)
+    keepalive_s: int = _opt("MQTT keep-alive, s", 30, min=5, max=3600)
+    tls: bool = _opt("connect with TLS", False)
+    ca_file: Path | None = _opt("TLS: CA certificate file; null = the system's", None)
+    cert_file: Path | None = _opt("TLS: client certificate", None)
+    key_file: Path | None = _opt("TLS: client key", None)
+    username: str | None = _opt("broker user; null = anonymous", None)
+    password_file: Path | None = _opt("file holding the password (not in this config)", None)
+    queue_size: int = _opt("events and status kept while the broker is unreachable", 1000,
+                           min=1, max=1_000_000)
+    summary_interval_s: float = _opt("least time between two summaries, s", 1.0, min=0.0)
+
+
+@dataclass(frozen=True)
+class AlarmsConfig:
+    """Alarm sinks."""
+
+    mqtt: MqttAlarmConfig = _opt("MQTT", factory=MqttAlarmConfig)
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole appliance configuration (one YAML file)."""
 
@@ -226,3 +305,5 @@ class Config:
     )
     simulation: SimulationConfig = _opt("scene of the simulated cameras",
                                         factory=SimulationConfig)
+    events: EventsConfig = _opt("leak events", factory=EventsConfig)
+    alarms: AlarmsConfig = _opt("alarm sinks", factory=AlarmsConfig)

@@ -103,39 +103,27 @@ def _convert_scalar(path: str, tp: Any, value: Any, meta: Mapping[str, Any],
         if bad:
             errors.append(f"{path}: keys must be strings, got {_describe(bad[0])}")
         return dict(value)
-    if origin is list:
-        return _convert_array(path, value, meta, errors)
+    if origin is list and meta.get("polygons"):
+        return _convert_polygons(path, value, errors)
     raise TypeError(f"config field {path} has unsupported type {tp!r}")  # programming error
 
 
-def _convert_array(path: str, value: Any, meta: Mapping[str, Any], errors: list[str]) -> Any:
-    shape = meta["shape"]
-    try:
-        ok = isinstance(value, list) and len(value) == shape[0]
-        if len(shape) == 2:
-            ok = ok and all(isinstance(r, list) and len(r) == shape[1] for r in value)
-        flat = [x for r in value for x in r] if len(shape) == 2 else list(value)
-        ok = ok and all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                        and math.isfinite(x) for x in flat)
-    except TypeError:
-        ok = False
-    if not ok:
-        want = "x".join(map(str, shape))
-        errors.append(f"{path}: expected a {want} list of numbers, got {_describe(value)}")
+def _convert_polygons(path: str, value: Any, errors: list[str]) -> Any:
+    """A list of polygons, each a list of at least 3 finite [x, y] points."""
+    def point_ok(pt: Any) -> bool:
+        return (isinstance(pt, list) and len(pt) == 2 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c)
+            for c in pt))
+
+    if not isinstance(value, list):
+        errors.append(f"{path}: expected a list of polygons, got {_describe(value)}")
         return value
-    out = [float(x) for x in value] if len(shape) == 1 else [[float(x) for x in r]
-                                                              for r in value]
-    if meta.get("orthonormal"):
-        m = out
-        gram_err = max(abs(sum(m[k][i] * m[k][j] for k in range(3)) - (1.0 if i == j else 0.0))
-                       for i in range(3) for j in range(3))
-        det = (m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-               - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-               + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]))
-        if gram_err > 1e-3 or det < 0:
-            errors.append(f"{path}: must be a rotation (orthonormal, determinant +1; "
-                          f"R^T R error {gram_err:.2g}, det {det:.3g}), got {_describe(value)}")
-    return out
+    for i, poly in enumerate(value):
+        if not (isinstance(poly, list) and len(poly) >= 3 and all(map(point_ok, poly))):
+            errors.append(f"{path}[{i}]: expected a polygon [[x, y], [x, y], [x, y], ...] "
+                          f"(at least 3 points), got {_describe(poly)}")
+            return value
+    return [[[float(c) for c in pt] for pt in poly] for poly in value]
 
 
 def _build(cls: type, data: Any, prefix: str, errors: list[str]) -> Any:

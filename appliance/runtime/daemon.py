@@ -73,6 +73,7 @@ class Appliance:
         self._threads: list[threading.Thread] = []
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
         self.recorder: Any = None
+        self.clips: Any = None
         self.live: Any = None
         self.ring: Any = None
         self.site: SimulatedSite | None = None
@@ -159,7 +160,7 @@ class Appliance:
             stack.callback(self._restore_signals)
             self._start_recording(stack)
             self._start_live(stack)
-            self.monitor = self._make_monitor()
+            self.monitor = self._make_monitor(stack)
             stack.callback(self.monitor.close)
             self.publisher = ResultPublisher(
                 self.recorder, self.live, self.wall_ns, self.cfg.recording.fields_every,
@@ -210,18 +211,28 @@ class Appliance:
         cfg = self.cfg
         if not cfg.recording.enabled:
             return
+        from appliance.recording.clips import ClipKeeper
         from appliance.recording.metadata import file_metadata, processing_metadata
         from appliance.recording.recorder import Recorder
         from appliance.recording.recovery import recover_unfinished
+        from appliance.recording.split import SplitRecorder
 
-        cfg.recording.dir.mkdir(parents=True, exist_ok=True)
-        for rep in recover_unfinished(cfg.recording.dir):
-            log.warning("recovered %s after a crash", rep)
+        rc = cfg.recording
+        rc.dir.mkdir(parents=True, exist_ok=True)
+        for folder in (rc.dir, rc.dir / "raw", rc.dir / "data"):
+            for rep in recover_unfinished(folder):
+                log.warning("recovered %s after a crash", rep)
         cal_text = Path(cfg.calibration).read_text() if cfg.calibration is not None else None
         metadata = file_metadata(cfg, cal_text)
         assert self.geometry is not None
         metadata.update(processing_metadata(self.geometry, self.params))
-        self.recorder = Recorder(cfg.recording, metadata).start()
+        if rc.split:
+            self.clips = ClipKeeper(rc.dir / "raw", rc.dir / "events", pre_s=rc.pre_trigger_s,
+                                    post_s=rc.post_trigger_s, quota_gb=rc.events_quota_gb)
+            stack.callback(self.clips.close)  # after the recorder: its last raw file too
+            self.recorder = SplitRecorder(rc, metadata).start()
+        else:
+            self.recorder = Recorder(rc, metadata).start()
         stack.callback(self._close_recorder)
 
     def _start_live(self, stack: contextlib.ExitStack) -> None:
@@ -230,7 +241,8 @@ class Appliance:
         from appliance.live.view import LiveView
 
         self.live = LiveView(self.cfg.live,
-                             server_memory_limit=f"{self.cfg.live.server_memory_mb}MB").start()
+                             server_memory_limit=f"{self.cfg.live.server_memory_mb}MB",
+                             max_image_hz=self.cfg.live.max_image_hz).start()
         stack.callback(self.live.close)
         self.live_url = getattr(self.live, "url", None)
 
@@ -272,17 +284,25 @@ class Appliance:
             self.counters.worker_restarts += 1
             self._workers[i] = self._start_worker(i)
 
-    def _make_monitor(self) -> Any:
-        """Leak events, emission-rate window and the operator's status (runtime.monitor)."""
-        from appliance.runtime.events import EventConfig
-        from appliance.runtime.monitor import LeakMonitor
+    def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
+        from appliance.runtime.monitor import monitor_from_config
 
         assert self.geometry is not None and self.site is not None
         true_rate = (self.cfg.simulation.release_rate_g_s if self.site.truth is not None
                      else None)
-        return LeakMonitor(EventConfig(), self.geometry.image_size, live=self.live,
-                           on_event=lambda kind, ev: self.publisher.record_event(kind, ev),
-                           true_rate_g_s=true_rate)
+        return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
+                                   on_event=self._on_event, true_rate_g_s=true_rate)
+
+    def _on_event(self, kind: str, event: dict[str, Any]) -> None:
+        """A leak event changed: record it, and keep its raw frames as a clip."""
+        self.publisher.record_event(kind, event)
+        if self.clips is None:
+            return
+        if kind == "start":
+            self.clips.event_started(int(event["id"]), float(event["start_t_s"]), event)
+        elif kind == "end":
+            self.clips.event_ended(int(event["id"]), float(event["end_t_s"] or
+                                                           event["start_t_s"]), event)
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
         from appliance.runtime.health import (
@@ -299,6 +319,8 @@ class Appliance:
         if self.live is not None:
             sinks.append(live_sink(self.live))
         sinks.append(self.monitor.on_health)
+        if self.clips is not None:
+            sinks.append(lambda _snap: self.clips.poll())  # link newly closed raw files
         self.health.add_counters(self._health_counters)
         if self.cfg.recording.enabled:
             self.health.add_gauges(disk_free_source(self.cfg.recording.dir))

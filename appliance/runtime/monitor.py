@@ -151,3 +151,26 @@ class LeakMonitor:
     def push_status(self, t_wall_ns: int | None = None) -> None:
         if self.live is not None:
             self.live.push(self.status(t_wall_ns))
+
+
+def monitor_from_config(cfg: Any, image_size: tuple[int, int], stack: Any, *, live: Any,
+                        on_event: Callable[[str, dict[str, Any]], None],
+                        true_rate_g_s: float | None) -> LeakMonitor:
+    """The daemon's monitor from the ``events`` and ``alarms`` config sections; alarm sinks
+    are started here and closed by ``stack`` (after the monitor has ended an open event,
+    when the monitor's own close is registered after this call)."""
+    import dataclasses
+
+    ev = cfg.events
+    events = EventConfig(**{f.name: getattr(ev, f.name) for f in dataclasses.fields(EventConfig)})
+    sinks = []
+    mq = cfg.alarms.mqtt
+    if mq.enabled:
+        from appliance.alarms.mqtt import MqttConfig, MqttSink
+
+        sink = MqttSink(MqttConfig(**{f.name: getattr(mq, f.name)
+                                      for f in dataclasses.fields(MqttConfig)})).start()
+        stack.callback(sink.close)
+        sinks.append(sink)
+    return LeakMonitor(events, image_size, rate_window_s=ev.rate_window_s, on_event=on_event,
+                       alarm_sinks=sinks, live=live, true_rate_g_s=true_rate_g_s)
