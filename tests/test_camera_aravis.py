@@ -339,6 +339,7 @@ def _scenario_daemon() -> dict:
         ("cameras.right.options", {**cam, "serial": "OGIR", "label": "right"}),
         ("calibration", str(tmp / "stereo.yaml")), ("recording.dir", str(tmp / "rec")),
         ("live.mode", "off"), ("processing.enabled", False), ("health.interval_s", 0.2),
+        ("recording.split", False),
         ("simulation.cache_dir", str(tmp / "cache"))])
     app = Appliance(cfg, duration_s=120.0)
     c = app.counters

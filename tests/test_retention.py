@@ -40,10 +40,11 @@ def test_split_layout_keeps_every_summary_and_the_event_clip(tmp_path: Path,
     app = Appliance(cfg, duration_s=240.0)
 
     def stop_when_buffer_rolled() -> None:
+        """Stop once the raw buffer has deleted a file that the event's clip keeps."""
         t_end = time.monotonic() + 200
         while not app.stop_event.wait(0.5) and time.monotonic() < t_end:
-            deleted = app.recorder.raw.stats().files_deleted if app.recorder else 0
-            if deleted >= 3 and app.monitor.detector.current is not None:
+            clips = sorted((rec / "events").glob("*/ogiflow-*.mcap"))
+            if any(not (rec / "raw" / c.name).exists() for c in clips):
                 break
         app.stop_event.set()
 

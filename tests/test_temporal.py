@@ -13,7 +13,9 @@ from tests.scene_flow_plane import B_M, PP, S_PX, SIZE, render, texture
 GEOMETRY = StereoGeometry(
     camera_constant=S_PX, principal_point=PP, baseline=B_M, image_size=(SIZE[1], SIZE[0])
 )
-PARAMS = ChainParameters(register=False, disparity_init="d0", d0=60.0)
+# temporal_weight 0: this file tests the warm start alone; with the d' coherence filter
+# (processing.coherence) a warm triple also blends the previous d' on purpose.
+PARAMS = ChainParameters(register=False, disparity_init="d0", d0=60.0, temporal_weight=0.0)
 V_TRUE = np.array([0.3, -0.2, -0.5])
 DT = 1 / 30
 REGION = (slice(20, -20), slice(110, -20))  # seen by both cameras, away from borders

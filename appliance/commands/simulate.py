@@ -163,7 +163,7 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Generate the requested sequences; print one summary line per sequence."""
-    from processing.calibration.model import save_calibration
+    from processing.calibration import save_calibration
     from processing.synthetic.config import synthetic_calibration
     from processing.synthetic.sequences import (
         frame_characteristics,

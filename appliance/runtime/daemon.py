@@ -74,6 +74,7 @@ class Appliance:
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
         self.recorder: Any = None
         self.clips: Any = None
+        self.monitor: Any = None
         self.live: Any = None
         self.ring: Any = None
         self.site: SimulatedSite | None = None
@@ -440,4 +441,9 @@ class Appliance:
         if getattr(self.acquisition, "anemometer", None) is not None:
             counts = self.acquisition.anemometer.counts
             out["serial_errors"] = int(counts.checksum_failures + counts.malformed)
+        for sink in getattr(self.monitor, "sinks", ()):  # alarm sinks: outages, drops
+            s = sink.stats()
+            out.update({"alarm_connected": int(s.connected), "alarm_disconnects": s.disconnects,
+                        "alarm_dropped": s.dropped, "alarm_queued": s.queued,
+                        "alarm_outage_s": int(s.outage_s)})
         return out
