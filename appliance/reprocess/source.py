@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from processing.chain import ChainParameters, StereoGeometry
@@ -185,8 +186,11 @@ def wind_history(rec: Recording, samples: Sequence[Mapping[str, Any]]) -> Any:
         return None
     history = WindHistory()
     for m in samples:
-        vec = mounting.rotation @ [m["u"], m["v"], m["w"]]
-        history.add(CameraWind(host_ns=m["t_mono_ns"], vector=vec, valid=bool(m["valid"]),
+        # A failed axis is recorded as null: NaN here, so the sample counts as invalid.
+        axes = [float("nan") if m[k] is None else float(m[k]) for k in ("u", "v", "w")]
+        vec = mounting.rotation @ axes
+        history.add(CameraWind(host_ns=m["t_mono_ns"], vector=vec,
+                               valid=bool(m["valid"]) and all(np.isfinite(axes)),
                                vertical_measured=True))
     return history if len(history) else None
 
