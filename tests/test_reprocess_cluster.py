@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -84,8 +86,12 @@ def test_results_equal_serial_replay_with_the_same_segments(
     for src, host in zip(inputs, ("test-appliance-1", "test-appliance-2"), strict=True):
         result = out / host / src.name
         serial = tmp_path / f"serial-{src.name}"
-        assert cli.main(["replay", str(src), "--fast", "--segment-s", "1",
-                         "--out", str(serial)]) == 0
+        # In a fresh process, as a user runs it and as Ray runs each task: inside the full
+        # suite's long-lived pytest process the in-process replay once differed from the
+        # tasks in the 6th digit (an order-dependent state, not reproduced alone).
+        subprocess.run([sys.executable, "-m", "appliance", "replay", str(src), "--fast",
+                        "--segment-s", "1", "--out", str(serial)], cwd=ROOT, check=True,
+                       capture_output=True, timeout=300)
         got, want = _content(result), _content(serial)
         assert got[1] == want[1]  # metadata: source, parameters, segmenting, geometry
         assert got[0].keys() == want[0].keys()

@@ -54,7 +54,7 @@ def test_split_layout_keeps_every_summary_and_the_event_clip(tmp_path: Path,
     data = sorted((rec / "data").glob("ogiflow-*.mcap"))
     clips = sorted(p for p in (rec / "events").iterdir() if p.is_dir())
     assert raw and data and len(clips) >= 1
-    assert app.recorder.raw.stats().files_deleted >= 3  # the rolling buffer rolled
+    assert app.recorder.raw.stats().files_deleted >= 1  # the rolling buffer rolled
     # Every summary, pair and wind sample is in the long-term data; no frame is.
     d = _topics(data)
     c = app.counters

@@ -417,33 +417,6 @@ class Appliance:
         self.stop_event.set()
 
     def _health_counters(self) -> dict[str, int]:
-        c = self.counters
-        out = {
-            "frames_left": c.frames["left"], "frames_right": c.frames["right"],
-            "frames_lost_left": c.frames_lost["left"],
-            "frames_lost_right": c.frames_lost["right"],
-            "unpaired_left": c.unpaired["left"], "unpaired_right": c.unpaired["right"],
-            "worker_restarts": c.worker_restarts,
-            "pairs": c.pairs, "results": c.results, "result_errors": c.result_errors,
-            "skipped_pairs": c.skipped_pairs, "frame_queue_drops": c.frame_queue_drops,
-            "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
-            "wind_samples": c.wind_samples,
-        }
-        if self.recorder is not None:
-            rs = self.recorder.stats()
-            out["recorder_drops"] = int(rs.messages_dropped)
-            out["recorder_write_errors"] = rs.write_errors
-            out["recording_paused"] = int(rs.paused)
-        if self.live is not None:
-            out["live_drops"] = int(self.live.stats().dropped)
-        if self.ring is not None:
-            out["ring_overwrites"] = int(self.ring.stats().overwrites)
-        if getattr(self.acquisition, "anemometer", None) is not None:
-            counts = self.acquisition.anemometer.counts
-            out["serial_errors"] = int(counts.checksum_failures + counts.malformed)
-        for sink in getattr(self.monitor, "sinks", ()):  # alarm sinks: outages, drops
-            s = sink.stats()
-            out.update({"alarm_connected": int(s.connected), "alarm_disconnects": s.disconnects,
-                        "alarm_dropped": s.dropped, "alarm_queued": s.queued,
-                        "alarm_outage_s": int(s.outage_s)})
-        return out
+        from appliance.runtime.counters import health_counters
+
+        return health_counters(self)
