@@ -93,6 +93,7 @@ class LiveView:
         self._memory_limit = server_memory_limit
         self._styled: set[str] = set()
         self._image_period_ns = int(1e9 / max_image_hz) if max_image_hz > 0 else 0
+        self._pending_blueprint: Any = None
         self._last_image_ns = 0
 
     # ------------------------------------------------------------------ producer side
@@ -147,11 +148,16 @@ class LiveView:
             self._rec.save(str(path), default_blueprint=bp)
             self._stats.url = str(path)
         elif mode == "connect":
-            self._rec.connect_grpc(self.cfg.url, default_blueprint=bp)
+            # No blueprint here: connect_grpc flushes it synchronously, and a viewer that
+            # accepts but never reads would hang the caller (the daemon's start-up) once
+            # the blueprint exceeds the transport's window. The live thread sends it.
+            self._rec.connect_grpc(self.cfg.url)
             self._stats.url = self.cfg.url
+            self._pending_blueprint = bp
         elif mode == "serve":
             grpc_url = self._start_server()
-            self._rec.connect_grpc(grpc_url, default_blueprint=bp)
+            self._rec.connect_grpc(grpc_url)
+            self._pending_blueprint = bp
         else:
             raise ValueError(f"live.mode: unknown mode {mode!r}")
         self._thread = threading.Thread(target=self._run, name="live-view", daemon=True)
@@ -202,6 +208,10 @@ class LiveView:
     # ------------------------------------------------------------------ live thread
 
     def _run(self) -> None:
+        if self._pending_blueprint is not None:  # may block on a stalled viewer: only here
+            self._rec.send_blueprint(self._pending_blueprint, make_active=True,
+                                     make_default=True)
+            self._pending_blueprint = None
         self._log_styles()
         while True:
             try:
