@@ -25,17 +25,17 @@ images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timesta
 
 from __future__ import annotations
 
-import dataclasses
-import difflib
 import time
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from processing.baselines import sgbm_initial_disparity
 from processing.calibration.radiometric import CharacteristicCurve, band_radiance
+from processing.chain_parameters import (
+    ChainParameters,
+)
 from processing.coherence import smooth_disparity_change
 from processing.depth_gate import apply_gate, out_of_band_motion
 from processing.disparity import joint_disparity
@@ -65,135 +65,6 @@ from processing.temporal import (
 
 __all__ = ["ChainParameters", "ChainState", "SceneFlowResult", "StereoGeometry",
            "compute_scene_flow", "frame_interval", "initial_scale"]
-
-#: Solver options on a warm start (see ChainParameters); chosen by measurement, README.
-WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
-WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
-                                              "n_inner_finest": 2, "n_sor": 8}
-
-
-@dataclass(frozen=True)
-class ChainParameters:
-    """Parameters of the chain; defaults are the paper's values (Sec. 5).
-
-    Attributes
-    ----------
-    alpha, beta : float
-        Flow smoothness and gradient-constancy weights (Eq. 5; 0.05, 0.1).
-    gamma1, gamma2 : float
-        Smoothness weights of d and d' (Eq. 6; 0.05, 0.5).
-    nu : float
-        Length weight of the segmentation (Eq. 9; 0.5).
-    d0 : float
-        Minimum disparity in px (Sec. 4.3): the initial disparity for ``disparity_init =
-        "d0"``; for ``"sgm"`` the lower end of the SGM search range and the fill value of
-        its holes.
-    disparity_init : str
-        "sgm" (StereoSGBM on the differential images, holes filled with d0) or "d0".
-    sgm_num_disparities : int
-        Width of the SGM search range [floor(d0), floor(d0) + N) in px (multiple of 16).
-    denoise_lambda : float
-        Sobolev prior weight in px^2 (0 disables).
-    register : bool
-        Remove camera jitter by registering consecutive frames on the static background.
-    max_jitter_px : float
-        Registration estimates larger than this are taken for gas motion (featureless
-        background) and not applied; the result counts them in ``rejected_shifts``. The
-        shift between two frames is the difference of two independent jitters: with 0.3
-        px per axis it exceeds 1 px in about 6 % of the pairs, hence 1.5.
-    gas_temperature_k : float or None
-        Gas temperature in K (about the ambient air temperature). With radiometric curves
-        in the geometry, the differential images become differential optical depth, free of
-        the background's texture (:func:`processing.preprocess.differential_image`); None
-        (or no curves) keeps plain differences.
-    min_contrast_k : float
-        Floor of the gas-background contrast for that division, in K.
-    depth_gate : bool
-        Remove moving image regions whose stereo disparity lies outside the gas band
-        [d0, d0 + sgm_num_disparities] before the solvers (:mod:`processing.depth_gate`).
-    max_motion_px : int
-        Largest image motion within a triple, px: how far the gate's masks grow.
-    temporal_weight : float
-        Share a in [0, 1) of the previous triple's d', carried along the flow, in this
-        triple's d' (:mod:`processing.coherence`); 0 uses each triple alone (the paper).
-        The default 0.7 (memory ~3 frames) halved the triple-to-triple scatter of V_Z on
-        the robustness matrix.
-    diff_scale : float or None
-        Normalisation scale of the differential images in radiance (or count) units. None
-        tracks it online: the 0.999 quantile of |I_diff| over both cameras, with
-        exponential forgetting ``scale_forgetting`` per triple (kept in the state).
-    scale_forgetting : float
-        Forgetting factor of the tracked scale (0.02 at 30 Hz ~ 1.7 s memory).
-    warm_start : bool
-        Start the flow and the disparity from the previous triple's results (needs a
-        state; only when this triple follows it, :mod:`processing.temporal`). The SGM or
-        d0 initialisation is then used only on a cold start.
-    flow_options, disparity_options, segmentation_options : mapping
-        Further keyword arguments of the three solvers (iteration counts, pyramid ...).
-    warm_flow_options, warm_disparity_options : mapping
-        Overrides of ``flow_options`` / ``disparity_options`` on a warm start: the
-        previous fields are already close, so fewer pyramid levels and iterations do.
-    """
-
-    alpha: float = 0.05
-    beta: float = 0.1
-    gamma1: float = 0.05
-    gamma2: float = 0.5
-    nu: float = 0.5
-    d0: float = 0.0
-    disparity_init: str = "sgm"
-    sgm_num_disparities: int = 64
-    denoise_lambda: float = 2.0
-    register: bool = True
-    max_jitter_px: float = 1.5
-    gas_temperature_k: float | None = None
-    min_contrast_k: float = 1.0
-    depth_gate: bool = True
-    max_motion_px: int = 8
-    temporal_weight: float = 0.7
-    diff_scale: float | None = None
-    scale_forgetting: float = 0.02
-    warm_start: bool = True
-    flow_options: Mapping[str, Any] = field(default_factory=dict)
-    disparity_options: Mapping[str, Any] = field(default_factory=dict)
-    segmentation_options: Mapping[str, Any] = field(default_factory=dict)
-    warm_flow_options: Mapping[str, Any] = field(
-        default_factory=lambda: dict(WARM_FLOW_OPTIONS))
-    warm_disparity_options: Mapping[str, Any] = field(
-        default_factory=lambda: dict(WARM_DISPARITY_OPTIONS))
-
-    def __post_init__(self) -> None:
-        if self.disparity_init not in ("sgm", "d0"):
-            raise ValueError(
-                f"disparity_init must be 'sgm' or 'd0', got {self.disparity_init!r}"
-            )
-        if self.sgm_num_disparities < 16 or self.sgm_num_disparities % 16:
-            raise ValueError(
-                f"sgm_num_disparities must be a positive multiple of 16, "
-                f"got {self.sgm_num_disparities!r}"
-            )
-        if self.diff_scale is not None and not self.diff_scale > 0:
-            raise ValueError(f"diff_scale must be positive or null, got {self.diff_scale!r}")
-        if not 0 < self.scale_forgetting <= 1:
-            raise ValueError(f"scale_forgetting must be in (0, 1], got {self.scale_forgetting!r}")
-
-    @classmethod
-    def from_mapping(cls, values: Mapping[str, Any]) -> ChainParameters:
-        """Build from a config mapping; an unknown key raises ValueError naming it (with the
-        nearest known name for a near miss, e.g. ``alhpa`` -> ``alpha``)."""
-        names = sorted(f.name for f in dataclasses.fields(cls))
-        unknown = sorted(set(values) - set(names))
-        if unknown:
-            hints = []
-            for key in unknown:
-                near = difflib.get_close_matches(str(key), names, n=1)
-                hints.append(f"{key!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
-            raise ValueError(
-                f"unknown processing parameter(s) {', '.join(hints)}; "
-                f"known: {', '.join(names)}"
-            )
-        return cls(**dict(values))
-
 
 @dataclass(frozen=True)
 class SceneFlowResult:
