@@ -17,7 +17,6 @@ import os
 import re
 import shutil
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -25,17 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.mosquitto import free_port
+
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
         "--ignore-gpu-blocklist"]
 TITLES = ("gas camera", "status", "emission rate", "leak events")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def ocr(png: Path) -> str:
@@ -58,7 +53,7 @@ def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
 
     assert Path(CHROMIUM).exists(), "install the Debian package chromium (tools/install.sh --dev)"
     assert shutil.which("tesseract"), "install the Debian package tesseract-ocr"
-    web, grpc = _free_port(), _free_port()
+    web, grpc = free_port(), free_port()
     cmd = [sys.executable, "-m", "appliance", "run", "--duration", "300",
            "--record-dir", str(tmp_path / "rec"), "--live", "serve",
            "--set", f"live.web_port={web}", "--set", f"live.grpc_port={grpc}",
