@@ -7,6 +7,7 @@ import pytest
 
 from appliance.runtime.events import (
     EventConfig,
+    EvidenceStream,
     FrameEvidence,
     LeakDetector,
     evidence_from_fields,
@@ -109,3 +110,47 @@ def test_zones_and_evidence_from_fields() -> None:
     assert ev.source_xy is not None and 80 <= ev.source_xy[0] <= 84 and ev.rate_g_s == 1.0
     watch = zone_mask((h, w), watch=[((0, 0), (10, 0), (10, 10), (0, 10))])
     assert watch.sum() == 121
+
+
+def test_evidence_stream_keeps_the_source_of_a_plume_whose_direction_wobbles() -> None:
+    """A round plume base: the per-frame direction swings +-35 deg, so the upstream end along
+    each frame's own direction jumps; along the smoothed direction it stays put."""
+    h, w = 120, 160
+    yy, xx = np.mgrid[:h, :w]
+    mask = ((xx - 40) ** 2 + (yy - 60) ** 2 < 25 ** 2) | ((np.abs(yy - 60) < 15) & (xx > 40))
+    stream = EvidenceStream()
+    raw, smooth = [], []
+    for k in range(150):
+        a = np.deg2rad(35.0 if k % 2 else -35.0)
+        flow = np.zeros((h, w, 2))
+        flow[..., 0], flow[..., 1] = np.cos(a), np.sin(a)
+        raw.append(evidence_from_fields(k / 30, k, mask, flow).source_xy)
+        smooth.append(stream(k / 30, k, mask, flow).source_xy)
+
+    def spread(points: list) -> float:
+        p = np.asarray(points[100:])  # after the average settled
+        return float(np.hypot(*(p.max(axis=0) - p.min(axis=0))))
+    assert spread(raw) > 25.0  # the fixed-source rule would reject every other frame
+    assert spread(smooth) < 3.0
+
+
+def test_source_rule_under_gas_accepts_a_jumping_plume_end_and_rejects_a_moving_object() -> None:
+    """Fields through evidence_from_fields: a plume whose segmented base reaches the image edge
+    on every other frame (its upstream end jumps 40 px) still starts an event, because gas
+    covers its source; a warm object moving across the image never does."""
+    h, w = 120, 160
+    yy, xx = np.mgrid[:h, :w]
+    flow = np.zeros((h, w, 2))
+    flow[..., 0] = 1.0
+    plume = (np.abs(yy - 60) < 12) & (xx > 45)
+    edge = plume | ((np.abs(yy - 70) < 6) & (xx < 50))
+    cfg = EventConfig(min_gas_pixels=100, min_duration_s=1.0)
+    det = LeakDetector(cfg)
+    for k in range(int(6 * FPS)):
+        det.update(evidence_from_fields(k / FPS, k, edge if k % 2 else plume, flow))
+    assert det.current is not None
+    det = LeakDetector(cfg)
+    for k in range(int(6 * FPS)):
+        blob = (xx - (10 + 2.5 * k)) ** 2 + (yy - 60) ** 2 < 12 ** 2
+        det.update(evidence_from_fields(k / FPS, k, blob, flow))
+    assert det.current is None and not det.finished

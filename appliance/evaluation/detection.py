@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.footage import FootageSettings, find_sets, iter_mono_triples
-from appliance.runtime.events import EventConfig, FrameEvidence, LeakDetector, evidence_from_fields
+from appliance.runtime.events import EventConfig, EvidenceStream, FrameEvidence, LeakDetector
 
 
 @dataclass(frozen=True)
@@ -75,9 +75,10 @@ def detect_folder(name: str, frames: list[tuple[int, Path]], settings: Detection
                   ) -> dict[str, Any]:
     """Events in one single-camera set (folder of ``*frame<N>`` images)."""
     det = LeakDetector(settings.events)
+    stream = EvidenceStream()
     evidence = []
     for tr in iter_mono_triples(name, frames, settings.footage):
-        ev = evidence_from_fields(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
+        ev = stream(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
         evidence.append(ev)
         det.update(ev)
     if evidence:
@@ -94,6 +95,7 @@ def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]
     geometry = StereoGeometry.from_synthetic_camera(meta["camera"])
     n = int(meta["n_frames"])
     det = LeakDetector(settings.events)
+    stream = EvidenceStream()
     evidence: list[FrameEvidence] = []
     window: list[Any] = []
     params: ChainParameters | None = None
@@ -107,7 +109,7 @@ def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]
         trio, window = window, window[1:]
         res = compute_scene_flow([f.left for f in trio], [f.right for f in trio],
                                  [f.t_s for f in trio], geometry, params, state)
-        ev = evidence_from_fields(trio[0].t_s, trio[0].index, res.gas_mask, res.flow)
+        ev = stream(trio[0].t_s, trio[0].index, res.gas_mask, res.flow)
         evidence.append(ev)
         det.update(ev)
     if evidence:

@@ -9,7 +9,8 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
 - *plume-like motion*: the flow inside the gas region is coherent (mean resultant length of
   the flow directions, 0 = random, 1 = all parallel), as a plume carried by wind is;
 - *a fixed source*: the upstream end of the plume stays within ``max_source_shift_px`` of
-  the running median over the event's frames (a moving object drags its "source" along);
+  the running median over the event's frames, or gas still covers that median (a moving
+  object drags its "source" along and leaves the place where it was first seen);
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
   ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
   it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
@@ -110,6 +111,10 @@ class FrameEvidence:
         Anemometer wind in the camera frame.
     source_xyz_m : (float, float, float) or None
         3D position of the source, m (camera frame).
+    resultant : (float, float) or None
+        Mean unit flow direction of the gas pixels (length = coherence).
+    coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
+        Which cells of the image hold gas (to ask whether a source is still under gas).
     """
 
     t_s: float
@@ -121,14 +126,49 @@ class FrameEvidence:
     velocity_m_s: tuple[float, float, float] | None = None
     wind_m_s: tuple[float, float, float] | None = None
     source_xyz_m: tuple[float, float, float] | None = None
+    resultant: tuple[float, float] | None = None
+    coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
+
+    def covers(self, xy: tuple[float, float]) -> bool:
+        """Whether this frame's gas lies within one coverage cell of ``xy`` (px)."""
+        return covers(self.coverage, xy)
+
+
+def covers(coverage: np.ndarray | None, xy: tuple[float, float], cells: int = 1) -> bool:
+    """Whether a coverage grid (:attr:`FrameEvidence.coverage`) holds gas within ``cells``
+    cells (of ``COVERAGE_CELL_PX``) of the point ``xy`` (px)."""
+    if coverage is None:
+        return False
+    i, j = int(xy[1]) // COVERAGE_CELL_PX, int(xy[0]) // COVERAGE_CELL_PX
+    h, w = coverage.shape
+    return bool(coverage[max(i - cells, 0):min(i + cells + 1, h),
+                         max(j - cells, 0):min(j + cells + 1, w)].any())
+
+
+#: Positive frames whose sources anchor a candidate event (start rule, LeakDetector._stayed).
+ANCHOR_FRAMES = 5
+
+#: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
+COVERAGE_CELL_PX = 8
+
+
+def _coverage(mask: np.ndarray) -> np.ndarray:
+    h, w = mask.shape
+    c = COVERAGE_CELL_PX
+    padded = np.zeros((-(-h // c) * c, -(-w // c) * c), bool)
+    padded[:h, :w] = mask
+    return padded.reshape(padded.shape[0] // c, c, padded.shape[1] // c, c).any(axis=(1, 3))
 
 
 def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
-                         zones: np.ndarray | None = None, **extra: object) -> FrameEvidence:
+                         zones: np.ndarray | None = None, *,
+                         direction: tuple[float, float] | None = None,
+                         **extra: object) -> FrameEvidence:
     """Evidence of one frame from its gas mask (H, W) and image-plane flow (H, W, 2).
 
-    The source is the mean position of the 2 % most upstream gas pixels along the mean
-    flow direction; ``extra`` fills the optional fields of :class:`FrameEvidence`.
+    The source is the mean position of the 2 % most upstream gas pixels along ``direction``
+    (unit vector in the image, px; default: the frame's mean flow direction); ``extra``
+    fills the optional fields of :class:`FrameEvidence`.
     """
     mask = np.asarray(gas_mask, bool)
     if zones is not None:
@@ -144,12 +184,57 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
     unit = f[moving] / mag[moving, None]
     resultant = unit.mean(axis=0)
     coherence = float(np.hypot(*resultant))
-    d = resultant / max(coherence, 1e-12)
+    d = (np.asarray(direction, np.float64) if direction is not None
+         else resultant / max(coherence, 1e-12))
     along = xs * d[0] + ys * d[1]
     up = along <= np.percentile(along, 2.0)
     source = (float(xs[up].mean()), float(ys[up].mean()))
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
-                         **extra)
+                         resultant=(float(resultant[0]), float(resultant[1])),
+                         coverage=_coverage(mask), **extra)
+
+
+class EvidenceStream:
+    """Per-frame evidence of one camera stream, with the plume's direction smoothed in time.
+
+    The upstream end of a bent or billowing plume depends strongly on the direction it is
+    measured along: with each frame's own mean flow direction, the source of a real plume
+    jumped between two ends of its base (50 px apart in the simulated site), so the
+    fixed-source rule rejected about half of its frames and an event started or not by
+    chance. Along the direction averaged over ``tau_s`` the source stays put, while a moving
+    object's trailing end still travels with it.
+
+    Parameters
+    ----------
+    zones : ndarray (H, W) of bool, optional
+        From :func:`zone_mask`.
+    tau_s : float
+        Time constant of the exponential average of the flow resultant, s.
+    """
+
+    def __init__(self, zones: np.ndarray | None = None, tau_s: float = 3.0) -> None:
+        self.zones = zones
+        self.tau_s = tau_s
+        self._mean: np.ndarray | None = None
+        self._t: float | None = None
+
+    def __call__(self, t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
+                 **extra: object) -> FrameEvidence:
+        """Evidence of one frame (frames may arrive slightly out of order)."""
+        direction = None
+        if self._mean is not None and np.hypot(*self._mean) > 1e-6:
+            direction = tuple(self._mean / np.hypot(*self._mean))
+        ev = evidence_from_fields(t_s, frame, gas_mask, flow, self.zones,
+                                  direction=direction, **extra)  # type: ignore[arg-type]
+        if ev.resultant is not None:
+            r = np.asarray(ev.resultant)
+            if self._mean is None or self._t is None:
+                self._mean, self._t = r, t_s
+            else:
+                a = 1.0 - np.exp(-max(t_s - self._t, 0.0) / self.tau_s)
+                self._mean = self._mean + max(a, 0.02) * (r - self._mean)
+                self._t = max(self._t, t_s)
+        return ev
 
 
 @dataclass
@@ -238,6 +323,9 @@ class LeakDetector:
         self.finished: list[LeakEvent] = []
         self._candidate_sources: collections.deque[tuple[float, float]] = collections.deque(
             maxlen=200)
+        # Gas of the candidate's first positive frames (``_same_source``), kept while the
+        # event lasts.
+        self._anchor_coverage: np.ndarray | None = None
 
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
@@ -249,11 +337,23 @@ class LeakDetector:
         ref = (self.current.source_xy if self.current is not None
                else (_median_point(self._candidate_sources) if self._candidate_sources
                      else None))
-        if ref is not None and ev.source_xy is not None:
-            if np.hypot(ev.source_xy[0] - ref[0], ev.source_xy[1] - ref[1]) > (
-                    c.max_source_shift_px):
-                return False
-        return True
+        return ref is None or self._same_source(ev, ref)
+
+    def _same_source(self, ev: FrameEvidence, ref: tuple[float, float]) -> bool:
+        """Whether the frame's source is the reference source ``ref`` (px).
+
+        The upstream end of a billowing plume jumps (in the simulated site between its
+        base and gas spread against the image edge, 50 px apart), so besides being close,
+        the two count as one source when either lies under the other's gas: this frame's
+        gas still covers ``ref``, or the gas of the candidate's first frames covered this
+        frame's source. A moving object leaves both places behind.
+        """
+        if ev.source_xy is None:
+            return True
+        shift = np.hypot(ev.source_xy[0] - ref[0], ev.source_xy[1] - ref[1])
+        return bool(shift <= self.cfg.max_source_shift_px or ev.covers(ref)
+                    # the first frames' gas is a union: no extra margin around it
+                    or covers(self._anchor_coverage, ev.source_xy, cells=0))
 
     def _fraction(self, now: float, window: float) -> tuple[float, float | None]:
         """Positive fraction of the frames in (now - window, now] and the first positive t."""
@@ -263,12 +363,24 @@ class LeakDetector:
         first = next((t for t, p in items if p), None)
         return sum(p for _, p in items) / len(items), first
 
+    def _stayed(self, ev: FrameEvidence) -> bool:
+        """Whether the candidate's first sources are still at this frame's source or under
+        its gas: a warm object moving slowly enough to keep up with the running median is
+        caught here, because it has left the place where it was first seen."""
+        if ev.source_xy is None or not self._candidate_sources:
+            return True
+        return self._same_source(
+            ev, _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
+
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
         c = self.cfg
         pos = self.positive(ev)
         if pos and ev.source_xy is not None and self.current is None:
             self._candidate_sources.append(ev.source_xy)
+            if len(self._candidate_sources) <= ANCHOR_FRAMES and ev.coverage is not None:
+                self._anchor_coverage = (ev.coverage if self._anchor_coverage is None
+                                         else self._anchor_coverage | ev.coverage)
         self._recent.append((ev.t_s, ev.frame, pos))
         horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
         while self._recent and self._recent[0][0] < ev.t_s - horizon:
@@ -277,13 +389,13 @@ class LeakDetector:
         if self.current is None:
             frac, first = self._fraction(ev.t_s, c.start_window_s)
             if (first is not None and frac >= c.start_fraction
-                    and ev.t_s - first >= c.min_duration_s):
+                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)):
                 start_frame = next(f for t, f, p in self._recent if t == first and p)
                 self.current = LeakEvent(next(self._ids), first, start_frame)
                 self.current.add(ev, pos)
                 out.append(("start", self.current))
             elif frac == 0.0:
-                self._candidate_sources.clear()  # nothing recent: forget the old candidate
+                self._forget_candidate()  # nothing recent
             return out
         self.current.add(ev, pos)
         frac, _ = self._fraction(ev.t_s, c.end_window_s)
@@ -301,8 +413,12 @@ class LeakDetector:
         event.end_t_s, event.end_frame, event.end_reason = t_end, f_end, reason
         self.finished.append(event)
         self.current = None
-        self._candidate_sources.clear()
+        self._forget_candidate()
         return event
+
+    def _forget_candidate(self) -> None:
+        self._candidate_sources.clear()
+        self._anchor_coverage = None
 
     def close(self, t_s: float, frame: int, reason: str = "appliance stopped"
               ) -> LeakEvent | None:

@@ -18,9 +18,9 @@ import numpy as np
 from appliance.live.status import OperatorStatus, health_words
 from appliance.runtime.events import (
     EventConfig,
+    EvidenceStream,
     LeakDetector,
     LeakEvent,
-    evidence_from_fields,
     zone_mask,
 )
 from processing.emission.rate import FrameRate, RateEstimate, RateWindow
@@ -57,6 +57,7 @@ class LeakMonitor:
         w, h = image_size
         self.detector = LeakDetector(events)
         self.zones = zone_mask((h, w), events.watch_zones, events.ignore_zones)
+        self.evidence = EvidenceStream(self.zones)
         self.window = RateWindow(rate_window_s)
         self.on_event = on_event
         self.sinks = list(alarm_sinks)
@@ -86,8 +87,8 @@ class LeakMonitor:
             self.wind = None if wind is None else tuple(float(v) for v in wind)  # type: ignore[assignment]
             self._t_wall_ns, self._frame = t_wall_ns, frame
             velocity = summary.get("mean_velocity_m_s")
-            ev = evidence_from_fields(
-                t_s, frame, gas_mask, flow, self.zones, rate_g_s=rate.rate_g_s,
+            ev = self.evidence(
+                t_s, frame, gas_mask, flow, rate_g_s=rate.rate_g_s,
                 velocity_m_s=tuple(velocity) if velocity else None, wind_m_s=self.wind)
             transitions = self.detector.update(ev)
         for kind, event in transitions:
