@@ -114,8 +114,9 @@ def test_camera_outage_loses_only_its_frames(scene_cache: Path, tmp_path: Path) 
           f"reconnect attempts {c.camera_reconnects}")
     assert lost["right"] == 0 and c.frame_queue_drops == 0
     assert seen["right_during"] > 20  # the other camera went on meanwhile
-    # The outage's 90 frames, plus at most the reconnection back-off cap (1 s) after it.
-    assert outage_s * 30 - 3 <= lost["left"] <= (outage_s + 1.5) * 30
+    # The outage's 90 frames, plus at most the reconnection back-off cap (0.1 s = 3 frames)
+    # after it and a few frames of scheduling under load.
+    assert outage_s * 30 - 3 <= lost["left"] <= outage_s * 30 + 10
     counts = recorded_topics(tmp_path / "rec")
     assert counts["/camera/left/image"] == c.frames["left"]
     assert counts["/camera/right/image"] == c.frames["right"]
