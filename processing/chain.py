@@ -57,8 +57,9 @@ from processing.summary import GasSummary, summarize_frame
 from processing.temporal import (
     ChainState,
     corrected_frames,
-    known_shift01,
+    known_shifts,
     remember,
+    remember_shifts,
     solver_options,
     warm_start,
 )
@@ -235,7 +236,7 @@ def compute_scene_flow(
         scale = state.scale.scale
     else:
         scale = initial_scale(left, right, geometry, params)
-    shift01 = known_shift01(state, times)
+    known = known_shifts(state, times)
     # Checked before the warm start: the state then still holds the previous triple.
     follows = state is not None and state.follows(times)
     lg, contrast_floor = gas_radiance(params, geometry)
@@ -252,9 +253,12 @@ def compute_scene_flow(
     ]
     pl, pr = preprocess_stereo(
         corrected[0], corrected[1], scale=scale, register=params.register,
-        denoise_lambda=params.denoise_lambda, shift01=shift01,
+        denoise_lambda=params.denoise_lambda,
+        shift01=tuple(k[0][0] if k[0] else None for k in known),  # type: ignore[arg-type]
+        shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
         max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
     )
+    pl, pr = remember_shifts(state, times, known, (pl, pr))
     t = lap("preprocess", t)
 
     flags: list[str] = []
@@ -320,8 +324,7 @@ def compute_scene_flow(
 
     if state is not None:
         _update_state(state, params, scale, pl, pr)
-        remember(state, times=times, flow=flow, disparity=d, change=dd,
-                 shifts12=(pl.shifts[1], pr.shifts[1]))
+        remember(state, times=times, flow=flow, disparity=d, change=dd)
     return SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,

@@ -263,6 +263,8 @@ class PreprocessedTriple:
     rejected_shifts : int
         How many estimated shifts of this triple (0-2) exceeded ``max_shift_px`` and were
         therefore not applied.
+    rejected : (bool, bool)
+        Which of the two shifts this call estimated and rejected (False for a known one).
     """
 
     diff0: np.ndarray
@@ -271,6 +273,7 @@ class PreprocessedTriple:
     raw1: np.ndarray
     shifts: tuple[tuple[float, float], tuple[float, float]]
     rejected_shifts: int = 0
+    rejected: tuple[bool, bool] = (False, False)
 
 
 def preprocess_camera(
@@ -285,6 +288,7 @@ def preprocess_camera(
     max_shift_px: float = 1.0,
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
+    shift12: tuple[float, float] | None = None,
 ) -> PreprocessedTriple:
     """Steps 1-6 of the module docstring for one camera and three consecutive frames.
 
@@ -302,9 +306,10 @@ def preprocess_camera(
         Remove jitter by registering t1 and t2 onto t0.
     denoise_lambda : float
         Sobolev prior weight in px^2 (:func:`processing.denoise.sobolev_denoise`); 0 = off.
-    shift01 : (float, float) or None
-        Known shift of t1 relative to t0 (e.g. the t1 -> t2 shift of the previous triple,
-        shifts compose additively); saves one registration.
+    shift01, shift12 : (float, float) or None
+        Known shifts of t1 relative to t0 and of t2 relative to t1 (measured by an earlier
+        triple that shared the frames, :class:`processing.temporal.ShiftMemo`; shifts
+        compose additively); each saves one registration.
     max_shift_px : float
         Largest plausible jitter in px. The registration assumes a static textured
         background; in front of a featureless one (sky, a uniform wall, the synthetic
@@ -337,23 +342,22 @@ def preprocess_camera(
         imgs = [apply_rectification(im, maps[0], maps[1]) for im in imgs]
     s01: tuple[float, float] = (0.0, 0.0)
     s12: tuple[float, float] = (0.0, 0.0)
-    rejected = 0
+    rejected = [False, False]
     if register:
         max_shift = check_positive(max_shift_px, "max_shift_px")
 
-        def plausible(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
-            nonlocal rejected
+        def plausible(k: int) -> tuple[float, float]:
             try:
-                shift, converged = estimate_shift_checked(a, b, max_iter=20)
+                shift, converged = estimate_shift_checked(imgs[k], imgs[k + 1], max_iter=20)
             except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
                 shift, converged = (0.0, 0.0), False
             if converged and float(np.hypot(*shift)) <= max_shift:
                 return shift
-            rejected += 1
+            rejected[k] = True
             return (0.0, 0.0)
 
-        s01 = shift01 if shift01 is not None else plausible(imgs[0], imgs[1])
-        s12 = plausible(imgs[1], imgs[2])
+        s01 = shift01 if shift01 is not None else plausible(0)
+        s12 = shift12 if shift12 is not None else plausible(1)
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)
@@ -361,7 +365,8 @@ def preprocess_camera(
     raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
     diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
     diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
-    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), rejected)
+    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), sum(rejected),
+                              (rejected[0], rejected[1]))
 
 
 def preprocess_stereo(
@@ -380,6 +385,7 @@ def preprocess_stereo(
     max_shift_px: float = 1.0,
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
+    shift12: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
 ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
     """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
 
@@ -392,8 +398,9 @@ def preprocess_stereo(
         Raw frames at t0, t1, t2 of the left and right camera.
     scale : float
         Shared normalisation scale in radiance units.
-    curves, maps, shift01 : pairs (left, right)
-        Per-camera characteristic curve, rectification maps and known t0 -> t1 shift.
+    curves, maps, shift01, shift12 : pairs (left, right)
+        Per-camera characteristic curve, rectification maps and known t0 -> t1 and
+        t1 -> t2 shifts.
     register, denoise_lambda, max_shift_px, gas_radiance, min_contrast
         As in :func:`preprocess_camera`, the same for both cameras.
 
@@ -416,6 +423,7 @@ def preprocess_stereo(
             register=register,
             denoise_lambda=denoise_lambda,
             shift01=shift01[k],
+            shift12=shift12[k],
             max_shift_px=max_shift_px,
             gas_radiance=gas_radiance,
             min_contrast=min_contrast,

@@ -8,7 +8,10 @@ and the gas moves little from one triple to the next. The live chain exploits bo
   ``warm_disparity_options``) instead of SGM and a full pyramid;
 - each raw frame is radiometrically corrected and rectified once, not once per triple it
   belongs to (:attr:`ChainState.frames`, keyed by camera and capture time);
-- the registration shift t1 -> t2 of one triple is the t0 -> t1 shift of the next;
+- the registration shift between two consecutive frames of a camera is estimated once
+  (:class:`ShiftMemo`, keyed by the frames' capture times): at stride 1 the t1 -> t2 shift
+  of one triple is the t0 -> t1 shift of the next; the daemon's workers share one memo, so
+  that with two workers alternating each triple estimates one shift per camera, not two;
 - the normalisation scale is tracked across triples.
 
 The differential image D(t1, t2) of one triple is D(t0, t1) of the next only on the same
@@ -27,16 +30,52 @@ workers taking every other triple (the daemon), each worker's state has stride 2
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from processing.preprocess import DiffScaleTracker
+from processing.preprocess import DiffScaleTracker, PreprocessedTriple
 
 #: Strides whose succession the shared capture times can prove (see the module docstring).
 STRIDES = (1, 2)
+
+#: A registration shift (dx, dy) in px and whether it was rejected (then it is (0, 0)).
+KnownShift = tuple[tuple[float, float], bool]
+
+
+class ShiftMemo(Protocol):
+    """Registration shifts between two frames of one camera, keyed by their capture times.
+
+    A shift depends only on the two (corrected) frames, so whoever estimated it first can
+    hand it to every later triple containing the same two frames; results are identical.
+    """
+
+    def get(self, camera: int, t_from: float, t_to: float) -> KnownShift | None:
+        """The shift of frame ``t_to`` relative to frame ``t_from`` (s), or None."""
+
+    def put(self, camera: int, t_from: float, t_to: float, shift: tuple[float, float],
+            rejected: bool) -> None:
+        """Remember a shift estimated by this process."""
+
+
+class LocalShiftMemo:
+    """A :class:`ShiftMemo` of one process: the last ``capacity`` shifts in a dict."""
+
+    def __init__(self, capacity: int = 16) -> None:
+        self.capacity = capacity
+        self._items: dict[tuple[int, float, float], KnownShift] = {}
+
+    def get(self, camera: int, t_from: float, t_to: float) -> KnownShift | None:
+        return self._items.get((camera, t_from, t_to))
+
+    def put(self, camera: int, t_from: float, t_to: float, shift: tuple[float, float],
+            rejected: bool) -> None:
+        self._items[(camera, t_from, t_to)] = ((float(shift[0]), float(shift[1])), rejected)
+        while len(self._items) > self.capacity:
+            del self._items[next(iter(self._items))]  # dicts keep insertion order
 
 
 @dataclass
@@ -56,8 +95,10 @@ class ChainState:
         w_L (H, W, 2), d_L and d'_L (H, W) of the previous triple, px.
     previous_times : (float, float, float) or None
         Capture times of the previous triple, s.
-    shift01 : pair of (dx, dy) or None
-        Registration shift t1 -> t2 of the previous triple per camera (left, right).
+    shifts : ShiftMemo
+        Registration shifts already estimated (this process's, or shared between workers).
+    shifts_reused : int
+        How many shifts came from ``shifts`` instead of being estimated.
     warm_starts, cold_starts : int
         How many calls started warm and cold (for the benchmark and the tests).
     frames : dict
@@ -73,7 +114,8 @@ class ChainState:
     previous_disparity: np.ndarray | None = None
     previous_change: np.ndarray | None = None
     previous_times: tuple[float, float, float] | None = None
-    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None)
+    shifts: ShiftMemo = field(default_factory=LocalShiftMemo)
+    shifts_reused: int = 0
     warm_starts: int = 0
     cold_starts: int = 0
     frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
@@ -96,7 +138,6 @@ class ChainState:
         """Forget the previous triple (the next call starts cold); keeps the scale."""
         self.previous_flow = self.previous_disparity = self.previous_change = None
         self.previous_times = None
-        self.shift01 = (None, None)
         self.frames.clear()
 
 
@@ -128,16 +169,34 @@ def warm_start(state: ChainState | None, times: tuple[float, float, float],
     return WarmStart(state.previous_flow, state.previous_disparity, state.previous_change)
 
 
-def known_shift01(state: ChainState | None, times: tuple[float, float, float]
-                  ) -> tuple[tuple[float, float] | None, tuple[float, float] | None]:
-    """The t0 -> t1 registration shift per camera if the previous triple measured it.
+def known_shifts(state: ChainState | None, times: tuple[float, float, float]
+                 ) -> tuple[tuple[KnownShift | None, KnownShift | None], ...]:
+    """Per camera (left, right): the t0 -> t1 and t1 -> t2 shifts already in the memo."""
+    if state is None:
+        return ((None, None), (None, None))
+    out = tuple((state.shifts.get(cam, times[0], times[1]),
+                 state.shifts.get(cam, times[1], times[2])) for cam in (0, 1))
+    state.shifts_reused += sum(k is not None for pair in out for k in pair)
+    return out
 
-    Only at stride 1, where the previous triple's t1 -> t2 is this one's t0 -> t1;
-    (None, None) otherwise (pre-processing then estimates it).
-    """
-    if state is None or state.stride != 1 or not state.follows(times):
-        return (None, None)
-    return state.shift01
+
+def remember_shifts(state: ChainState | None, times: tuple[float, float, float],
+                    known: Sequence[Sequence[KnownShift | None]],
+                    estimated: Sequence[PreprocessedTriple]) -> list[PreprocessedTriple]:
+    """Put the shifts this triple estimated into the memo; return the two cameras'
+    pre-processing results with the known shifts' rejections counted too (a triple is
+    flagged the same whether it estimated a shift or took it from the memo)."""
+    out = []
+    for cam, (pre, pair) in enumerate(zip(estimated, known, strict=True)):
+        rejected = list(pre.rejected)
+        for k, hit in enumerate(pair):
+            if hit is not None:
+                rejected[k] = hit[1]
+            elif state is not None:
+                state.shifts.put(cam, times[k], times[k + 1], pre.shifts[k], pre.rejected[k])
+        out.append(dataclasses.replace(pre, rejected_shifts=sum(rejected),
+                                       rejected=(rejected[0], rejected[1])))
+    return out
 
 
 def solver_options(base: Mapping[str, Any], warm: Mapping[str, Any],
@@ -147,15 +206,12 @@ def solver_options(base: Mapping[str, Any], warm: Mapping[str, Any],
 
 
 def remember(state: ChainState, *, times: tuple[float, float, float], flow: np.ndarray,
-             disparity: np.ndarray, change: np.ndarray,
-             shifts12: tuple[tuple[float, float], tuple[float, float]]) -> None:
+             disparity: np.ndarray, change: np.ndarray) -> None:
     """Store this triple's results in ``state`` for the next call."""
     state.previous_flow = flow
     state.previous_disparity = disparity
     state.previous_change = change
     state.previous_times = times
-    # The t1 -> t2 shift of this triple is the t0 -> t1 shift of the next one (stride 1).
-    state.shift01 = shifts12
 
 
 def corrected_frames(state: ChainState | None, camera: int, raw: Sequence[np.ndarray],

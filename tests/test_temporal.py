@@ -130,14 +130,55 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
     assert state.frames_reused == 4  # t1, t2 of both cameras in the second triple
 
 
-def test_known_registration_shift_only_for_the_next_triple_at_stride_1() -> None:
-    from processing.temporal import known_shift01
+def test_shift_memo_answers_only_the_exact_frame_pair() -> None:
+    from processing.temporal import LocalShiftMemo, known_shifts
 
-    state = ChainState()
-    state.previous_times = (0.0, 1.0, 2.0)
-    state.shift01 = ((0.1, 0.0), (0.0, -0.2))
-    assert known_shift01(state, (1.0, 2.0, 3.0)) == ((0.1, 0.0), (0.0, -0.2))
-    assert known_shift01(state, (2.0, 3.0, 4.0)) == (None, None)
-    assert known_shift01(None, (1.0, 2.0, 3.0)) == (None, None)
-    s2 = ChainState(stride=2, previous_times=(0.0, 1.0, 2.0), shift01=state.shift01)
-    assert known_shift01(s2, (2.0, 3.0, 4.0)) == (None, None)  # t1 -> t2 is not t2 -> t3
+    memo = LocalShiftMemo(capacity=4)
+    memo.put(0, 1.0, 2.0, (0.1, 0.0), False)
+    memo.put(1, 1.0, 2.0, (0.0, 0.0), True)
+    state = ChainState(shifts=memo)
+    assert known_shifts(state, (0.0, 1.0, 2.0)) == ((None, ((0.1, 0.0), False)),
+                                                    (None, ((0.0, 0.0), True)))
+    assert known_shifts(state, (1.0, 2.0, 3.0)) == ((((0.1, 0.0), False), None),
+                                                    (((0.0, 0.0), True), None))
+    assert known_shifts(state, (2.0, 3.0, 4.0)) == ((None, None), (None, None))
+    assert known_shifts(None, (1.0, 2.0, 3.0)) == ((None, None), (None, None))
+    for k in range(8):  # bounded: the oldest entries go
+        memo.put(0, 10.0 + k, 11.0 + k, (0.0, 0.0), False)
+    assert memo.get(0, 1.0, 2.0) is None and memo.get(0, 17.0, 18.0) is not None
+
+
+@pytest.mark.parametrize("shared", ["local", "multiprocessing"])
+def test_two_workers_sharing_shifts_give_identical_results_with_half_the_estimates(
+        shared: str) -> None:
+    """Two states at stride 2 (the daemon's two workers) with one shift memo: every triple
+    after the first takes one shift per camera from the other worker, and every result
+    (fields, rejections) is bit-identical to workers that estimate all their shifts."""
+    import multiprocessing
+
+    from appliance.runtime.shiftshare import SharedShiftMemo, create_shift_table
+    from processing.temporal import LocalShiftMemo
+
+    left, right, times = _sequence(8)
+    rng = np.random.default_rng(3)
+    # sub-pixel camera jitter on both cameras (what registration removes)
+    from processing.registration import warp_translation
+    left = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))
+            .astype(np.uint16) for f in left]
+    right = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))
+             .astype(np.uint16) for f in right]
+    seq = (left, right, times)
+    params = dataclasses.replace(PARAMS, register=True)
+    memo = (LocalShiftMemo() if shared == "local"
+            else SharedShiftMemo(create_shift_table(multiprocessing.get_context("spawn"))))
+    together = [ChainState(stride=2, shifts=memo) for _ in range(2)]
+    apart = [ChainState(stride=2) for _ in range(2)]
+    for k in range(6):
+        a = compute_scene_flow(*_triple(seq, k), GEOMETRY, params, together[k % 2])
+        b = compute_scene_flow(*_triple(seq, k), GEOMETRY, params, apart[k % 2])
+        assert a.shifts_left == b.shifts_left and a.shifts_right == b.shifts_right
+        assert a.rejected_shifts == b.rejected_shifts
+        for f in ("flow", "disparity", "disparity_change", "velocity"):
+            np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    assert sum(s.shifts_reused for s in together) == 2 * 5  # one per camera, triples 1-5
+    assert sum(s.shifts_reused for s in apart) == 0

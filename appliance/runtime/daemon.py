@@ -41,6 +41,7 @@ from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, worker_main
 from processing.chain import ChainParameters, StereoGeometry
@@ -259,6 +260,7 @@ class Appliance:
         self._mp = mp.get_context("spawn")
         self._results = self._mp.Queue(maxsize=64)
         self._stop_workers = self._mp.Event()
+        self._shift_table = create_shift_table(self._mp)
         stack.callback(self._stop_processing)
         if cfg.processing.enabled:
             for i in range(cfg.processing.workers):
@@ -270,7 +272,8 @@ class Appliance:
     def _start_worker(self, i: int) -> Any:
         p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                              args=(i, self.ring.handle(), self._results, self._stop_workers,
-                                   self.geometry, self.params, self.cfg.processing.workers),
+                                   self.geometry, self.params, self.cfg.processing.workers,
+                                   self._shift_table),
                              daemon=True)
         p.start()
         return p

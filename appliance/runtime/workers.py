@@ -131,6 +131,7 @@ def worker_main(
     geometry: StereoGeometry,
     params: ChainParameters,
     n_workers: int = 1,
+    shift_table: Any = None,
 ) -> None:
     """Body of one worker process; returns when ``stop`` (an Event) is set.
 
@@ -148,8 +149,11 @@ def worker_main(
         Stereo geometry and chain parameters (see :mod:`processing.chain`).
     n_workers : int
         How many workers share the stream (see the module docstring).
+    shift_table : shared array or None
+        Registration shifts shared by the workers (:mod:`appliance.runtime.shiftshare`).
     """
     from appliance.runtime.ring import PairRing
+    from appliance.runtime.shiftshare import SharedShiftMemo
     from appliance.runtime.tuning import keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -158,7 +162,8 @@ def worker_main(
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)
     stride, phase = share_of_stream(worker_id, n_workers)
-    state = ChainState(stride=stride)
+    state = (ChainState(stride=stride) if shift_table is None
+             else ChainState(stride=stride, shifts=SharedShiftMemo(shift_table)))
     # In order (warm) while at most half the ring behind; more than two workers share one
     # phase and take the newest window.
     max_lag = ring.capacity // 2 if n_workers <= 2 else None
