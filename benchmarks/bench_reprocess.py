@@ -11,9 +11,12 @@ parameters). Then, on the same files and with the same segmenting:
 
 1. ``ogiflow replay --fast --segment-s S`` on each file in turn (one process, as a user
    runs it today);
-2. ``ogiflow reprocess FILES --segment-s S`` (local Ray on all cores).
+2. ``ogiflow reprocess FILES --segment-s S`` (local Ray on all cores);
+3. the machine's own ceiling: one ``replay --fast`` process per file, all at once (no Ray,
+   no segments): how much faster two chains run side by side than one after the other on
+   these cores (shared memory bandwidth and caches make it less than the core count).
 
-Both are timed as whole commands (start-up, planning and merging included) and their
+All are timed as whole commands (start-up, planning and merging included) and their
 summaries are checked to be identical. Prints triples/s of each, the speed-up, and the
 measured cost of one segment (from the manifest), which the README's scaling estimate uses.
 """
@@ -41,6 +44,18 @@ def _cli(*args: str) -> float:
     t = time.perf_counter()
     subprocess.run([sys.executable, "-m", "appliance", *args], cwd=ROOT, env=env, check=True,
                    stdout=subprocess.DEVNULL)
+    return time.perf_counter() - t
+
+
+def _cli_parallel(runs: list[list[str]]) -> float:
+    """Run several ``python -m appliance ARGS`` at once; wall time of all in s."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    t = time.perf_counter()
+    procs = [subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=ROOT, env=env,
+                              stdout=subprocess.DEVNULL) for args in runs]
+    codes = [p.wait() for p in procs]
+    if any(codes):
+        raise RuntimeError(f"a parallel replay failed: exit codes {codes}")
     return time.perf_counter() - t
 
 
@@ -72,11 +87,15 @@ def main() -> None:
         common = ["--segment-s", str(args.segment_s), "--fields-every", str(args.fields_every)]
         t_replay = 0.0
         replayed = []
+        (work / "parallel").mkdir(parents=True, exist_ok=True)
         for i, f in enumerate(files):
             out = work / "replay" / f"{i}.mcap"
             out.parent.mkdir(parents=True, exist_ok=True)
             t_replay += _cli("replay", str(f), "--fast", "--out", str(out), *common)
             replayed.append(out)
+        t_parallel = _cli_parallel([
+            ["replay", str(f), "--fast", "--out", str(work / "parallel" / f"{i}.mcap"), *common]
+            for i, f in enumerate(files)]) if len(files) > 1 else None
         out_dir = work / "reprocess"
         t_reprocess = _cli("reprocess", *map(str, files), "--out", str(out_dir), *common)
         triples = sum(len(_summaries(p)) for p in replayed)
@@ -95,6 +114,10 @@ def main() -> None:
     print(f"reprocess (local Ray, all cores):           {t_reprocess:7.1f} s  "
           f"{triples / t_reprocess:6.2f} triples/s")
     print(f"speed-up: {t_replay / t_reprocess:.2f}x; summaries identical: {same}")
+    if t_parallel is not None:
+        print(f"ceiling, one replay per file all at once (no Ray): {t_parallel:7.1f} s  "
+              f"{t_replay / t_parallel:.2f}x; reprocess reaches "
+              f"{t_parallel / t_reprocess * 100:.0f} % of it")
     print(f"one segment ({len(segs)} run): median {per_seg:.1f} s, {per_triple * 1e3:.0f} ms "
           f"per triple inside a task (reading the file up to the segment included)")
 
