@@ -48,6 +48,20 @@ def latency_s(text: str) -> float | None:
     return float(m.group(1)) / (1000.0 if m.group(2) == "ms" else 1.0)
 
 
+def shown_frame_age_s(text: str, t_shot: float) -> float | None:
+    """Seconds between taking the screenshot (UNIX ``t_shot``) and the capture time of the
+    newest frame the status panel shows ("Newest frame: 21:40:13.4 UTC"), or None."""
+    m = re.search(r"newest frame:?\s*(\d\d):(\d\d):(\d\d)[.,](\d)", text)
+    if m is None:
+        return None
+    hh, mm, ss, tenth = (int(g) for g in m.groups())
+    day = t_shot - t_shot % 86400
+    shown = day + hh * 3600 + mm * 60 + ss + tenth / 10
+    if shown > t_shot + 3600:  # the frame was captured before midnight UTC
+        shown -= 86400
+    return t_shot - shown
+
+
 def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
     from playwright.sync_api import sync_playwright
 
@@ -90,11 +104,23 @@ def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
                 drawn = all(t in text for t in TITLES) and status and float(ir.std()) > 8.0
                 if drawn:
                     break
+            # What the operator sees is this old: capture -> processing -> status push (1 Hz)
+            # -> viewer -> pixels. Read from the panel's "Newest frame" line a few times.
+            ages = []
+            for _ in range(4 if drawn else 0):
+                time.sleep(2.0)
+                t_shot = time.time()
+                page.screenshot(path=str(tmp_path / "age.png"))
+                age = shown_frame_age_s(ocr(tmp_path / "age.png").lower(), t_shot)
+                if age is not None:
+                    ages.append(age)
             browser.close()
         if os.environ.get("OGIFLOW_SCREENSHOT"):
             shutil.copy(shot, os.environ["OGIFLOW_SCREENSHOT"])
         assert drawn, f"operator view not drawn within the deadline; OCR text: {text[:600]!r}"
-        print(f"viewer latency indicator: {latency_s(text)} s")
+        print(f"viewer latency indicator: {latency_s(text)} s; age of the newest frame on "
+              f"screen (capture to pixels): {[round(a, 1) for a in ages]} s")
+        assert ages, "the status panel's 'Newest frame' time was not readable"
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
@@ -109,3 +135,18 @@ def _read_png(path: Path) -> np.ndarray:
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     assert img is not None, f"could not read {path}"
     return img
+
+
+def test_shown_frame_age_reads_the_status_line() -> None:
+    import datetime as dt
+
+    from appliance.live.status import OperatorStatus, status_markdown
+
+    t = dt.datetime(2026, 11, 29, 21, 40, 13, 400_000, tzinfo=dt.timezone.utc).timestamp()
+    panel = status_markdown(OperatorStatus(t_capture_ns=int(t * 1e9),
+                                           newest_result_ns=int(t * 1e9)))
+    assert "Newest frame: 21:40:13.4 UTC" in panel
+    assert abs(shown_frame_age_s(panel.lower(), t + 1.5) - 1.5) < 1e-6
+    assert shown_frame_age_s("no time here", t) is None
+    midnight = dt.datetime(2026, 11, 30, 0, 0, 1, tzinfo=dt.timezone.utc).timestamp()
+    assert abs(shown_frame_age_s("newest frame: 23:59:59.0 utc", midnight) - 2.0) < 1e-6

@@ -37,6 +37,10 @@ class OperatorStatus:
         Health in words (:func:`health_words`).
     events : list of dict
         Recent events, newest first (``LeakEvent.to_dict()``).
+    newest_result_ns : int or None
+        Capture time of the newest processed frame, UNIX ns: shown to the tenth of a second
+        so that an operator sees how fresh the picture is (and the browser test measures the
+        display latency from it).
     """
 
     t_capture_ns: int
@@ -47,6 +51,7 @@ class OperatorStatus:
     wind_m_s: tuple[float, float, float] | None = None
     health: list[str] = field(default_factory=list)
     events: list[Mapping[str, Any]] = field(default_factory=list)
+    newest_result_ns: int | None = None
 
 
 def duration_words(seconds: float) -> str:
@@ -122,6 +127,9 @@ def status_markdown(s: OperatorStatus) -> str:
         lines.append(f"# LEAK - for {dur}")
     else:
         lines.append("# No leak")
+    if s.newest_result_ns:  # near the top: the panel is short and does not scroll by itself
+        t = datetime.fromtimestamp(s.newest_result_ns / 1e9, tz=timezone.utc)
+        lines.append(f"Newest frame: {t.strftime('%H:%M:%S')}.{t.microsecond // 100_000} UTC")
     if s.rate_kg_h is not None:
         unc = (f" +- {s.rate_uncertainty_kg_h:.2f}" if s.rate_uncertainty_kg_h is not None
                else "")

@@ -147,7 +147,8 @@ class LeakMonitor:
                                        else r.uncertainty_g_s * 3.6),
                 true_rate_kg_h=(None if self.true_rate_g_s is None
                                 else self.true_rate_g_s * 3.6),
-                wind_m_s=self.wind, health=list(self._health), events=events)
+                wind_m_s=self.wind, health=list(self._health), events=events,
+                newest_result_ns=self._t_wall_ns or None)
 
     def push_status(self, t_wall_ns: int | None = None) -> None:
         if self.live is not None:
