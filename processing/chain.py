@@ -40,10 +40,10 @@ from processing.coherence import smooth_disparity_change
 from processing.depth_gate import apply_gate, out_of_band_motion
 from processing.disparity import joint_disparity
 from processing.disturbances import preprocess_flags
+from processing.normalisation import DiffScaleTracker
 from processing.optical_flow import brox_optical_flow
 from processing.pixelwise import velocity_and_quality
 from processing.preprocess import (
-    DiffScaleTracker,
     PreprocessedTriple,
     apply_rectification,
     differential_image,

@@ -37,7 +37,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from processing.preprocess import DiffScaleTracker, PreprocessedTriple
+from processing.normalisation import DiffScaleTracker
+from processing.preprocess import PreprocessedTriple
 
 #: Strides whose succession the shared capture times can prove (see the module docstring).
 STRIDES = (1, 2)

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from processing.calibration.radiometric import CharacteristicCurve
+from processing.normalisation import DiffScaleTracker, normalise_difference
 from processing.preprocess import (
-    DiffScaleTracker,
     apply_rectification,
-    normalise_difference,
     preprocess_camera,
     preprocess_stereo,
     radiometric_correction,
