@@ -31,7 +31,7 @@ from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
-SCENE_VERSION = 1
+SCENE_VERSION = 2  # 2: time-correlated release, flux and release-rate truth (issue 13)
 #: Mean wind of the simulated anemometer when the config gives none, in Gill axes (U toward
 #: the north mark, V to its left, W up): with the default mounting (north mark along the
 #: optical axis) this is 1.5 m/s to the camera's right and 0.3 m/s away from it, a wind the
