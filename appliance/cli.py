@@ -35,6 +35,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.export",
     "appliance.commands.bench",
     "appliance.commands.eval_sceneflow",
+    "appliance.commands.eval_emission",
     "appliance.commands.eval_robustness",
     "appliance.commands.replay",
     "appliance.commands.reprocess",

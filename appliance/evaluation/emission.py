@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,19 +35,9 @@ import numpy as np
 
 from appliance.evaluation.robustness import FIELD_DISPARITY_OPTIONS
 from processing.calibration import load_calibration
-from processing.calibration.radiometric import apply_characteristic_curve, band_radiance
 from processing.chain import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
-from processing.emission import (
-    METHANE,
-    BackgroundModel,
-    FrameRate,
-    RateWindow,
-    column_density,
-    curtain_flux,
-    place_curtains,
-    ppm_m_to_kg_m2,
-)
-from processing.emission.rate import single_camera_velocity
+from processing.emission import METHANE, RateWindow
+from processing.emission.estimator import EmissionEstimator, EmissionSettings
 from processing.emission.truth import true_curtain_flux
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.storage import META_NAME
@@ -112,28 +103,20 @@ def evaluate_emission_sequence(directory: Path, *, name: str | None = None,
     geometry = _geometry(directory, meta)
     params = chain_parameters(meta)
     rad = meta["radiometry"]
-    band = (float(rad["band_um"][0]) * 1e-6, float(rad["band_um"][1]) * 1e-6)
+    # A calibrated site: alpha from a gas cell, the gas at the ambient (sonic) temperature.
+    gas = replace(METHANE, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                  source="the scene's (a gas-cell calibration)")
     t_gas = float(rad["t_gas_k"])
-    alpha = float(rad["alpha_per_ppm_m"])
-    l_gas = float(band_radiance(t_gas, band))
-    pp, s = geometry.principal_point, geometry.camera_constant
     z_typed = typed_distance_m(meta)
+    pp, s = geometry.principal_point, geometry.camera_constant
+    estimator = EmissionEstimator(EmissionSettings(gas=gas, typed_distance_m=z_typed), pp, s,
+                                  geometry.curve_left)
     n = int(meta["n_frames"])
     frames = [read_frame(directory, i, meta) for i in range(n)]
     if frames[0].flux_moment_kg_s is None:
         raise ValueError(f"{directory}: written before the emission ground truth; simulate "
                          "it again")
-    background = BackgroundModel(capacity=60, min_samples=8, refresh=5)
     sigmas: list[np.ndarray] = []
-
-    def sigma_of(i: int, gas_mask: np.ndarray) -> np.ndarray:
-        radiance = apply_characteristic_curve(frames[i].left, geometry.curve_left)
-        background.update(radiance, gas_mask)
-        cd = column_density(radiance, background.estimate(), l_gas, alpha)
-        return np.asarray(ppm_m_to_kg_m2(cd.ppm_m.astype(np.float64),
-                                         molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
-                                         temperature_k=t_gas))
-
     window = RateWindow(window_s=1e9)
     series: dict[str, list[float | None]] = {"truth": [], "stereo": [], "single": [],
                                              "release": []}
@@ -145,43 +128,27 @@ def evaluate_emission_sequence(directory: Path, *, name: str | None = None,
         res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
                                  [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
         if i == 0:
-            sigmas.append(sigma_of(0, res.gas_mask))
-        sigmas.append(sigma_of(i + 1, res.gas_mask))
-        sigma = 0.5 * (sigmas[i] + sigmas[i + 1])
+            sigmas.append(estimator.column_kg_m2(f0.left, res.gas_mask, t_gas))
+        sigmas.append(estimator.column_kg_m2(f1.left, res.gas_mask, t_gas))
+        rates = estimator.rates(0.5 * (sigmas[i] + sigmas[i + 1]), flow=res.flow,
+                                velocity=res.velocity, depth=res.position[..., 2],
+                                valid=res.valid, gas_mask=res.gas_mask, dt_s=res.dt_s)
         moment = 0.5 * (f0.flux_moment_kg_s.astype(np.float64)
                         + f1.flux_moment_kg_s.astype(np.float64))
         release = [f.release_rate_g_s for f in (f0, f1) if f.release_rate_g_s is not None]
         series["release"].append(float(np.mean(release)) if release else None)
-        placement = place_curtains(res.gas_mask, res.flow)
-        v_single = single_camera_velocity(res.flow, z_typed, s, res.dt_s)
-        z_single = np.full(res.gas_mask.shape, z_typed)
-        flow_ok = np.all(np.isfinite(res.flow), axis=-1)
-        depth = res.position[..., 2]
-        st, sc, tr = [], [], []
-        for c in placement.curtains:
-            f = curtain_flux(c, sigma, res.velocity, depth, res.valid, res.gas_mask,
-                             principal_point=pp, camera_constant=s)
-            if not f.defined:
-                continue
-            g = curtain_flux(c, sigma, v_single, z_single, flow_ok, res.gas_mask,
-                             principal_point=pp, camera_constant=s)
-            st.append(f.rate_kg_s * 1e3)
-            sc.append(g.rate_kg_s * 1e3)
-            tr.append(true_curtain_flux(c, moment, principal_point=pp, camera_constant=s) * 1e3)
-        if st:
-            rate = FrameRate(float(np.mean(st)), tuple(st))
-            series["stereo"].append(float(np.mean(st)))
-            series["single"].append(float(np.mean(sc)))
-            series["truth"].append(float(np.mean(tr)))
-        else:
-            rate = FrameRate(None, (), placement.reason or "no valid velocity on the curtains")
-            for k in ("stereo", "single", "truth"):
-                series[k].append(None)
+        rate = rates.stereo()
+        defined = rate.rate_g_s is not None
+        truth = [true_curtain_flux(c, moment, principal_point=pp, camera_constant=s) * 1e3
+                 for c in rates.curtains]
+        series["stereo"].append(rate.rate_g_s)
+        series["single"].append(rates.single().rate_g_s)
+        series["truth"].append(float(np.mean(truth)) if defined else None)
         window.push(f1.t_s, rate)
         if log is not None:
             log(f"  {name} triple {i + 1}/{triples}: "
-                + (f"stereo {series['stereo'][-1]:.2f} g/s, true {series['truth'][-1]:.2f} "
-                   f"g/s" if st else f"no rate ({rate.reason})")
+                + (f"stereo {rate.rate_g_s:.2f} g/s, true {series['truth'][-1]:.2f} g/s"
+                   if defined else f"no rate ({rate.reason})")
                 + f" ({time.perf_counter() - start:.0f} s)")
     return _record(meta, series, window, z_typed, time.perf_counter() - start)
 
