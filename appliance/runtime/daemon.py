@@ -42,7 +42,7 @@ from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.workers import WorkerResult, worker_main
+from appliance.runtime.workers import EmissionSetup, WorkerResult, worker_main
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -146,6 +146,14 @@ class Appliance:
         k0, k2 = self.acquisition.frame_ids(pair_index0, pair_index0 + 2)
         return self.site.true_velocity(k0, k2)
 
+    def _true_rate_for(self, pair_index: int) -> float | None:
+        """Simulator's true release rate (g/s) at the scene frame of pair ``pair_index``."""
+        if self.site is None or self.site.truth is None or self.acquisition is None:
+            return None
+        (k,) = self.acquisition.frame_ids(pair_index)
+        truth = self.site.truth
+        return None if k is None else truth.release_g_s[int(k) % len(truth.release_g_s)]
+
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
@@ -167,7 +175,8 @@ class Appliance:
                 self.recorder, self.live, self.wall_ns, self.cfg.recording.fields_every,
                 wind_at=self.history.at,
                 truth_for=self._truth_for if self.site.truth is not None else None,
-                monitor=self.monitor)
+                monitor=self.monitor, rate_window_s=self.cfg.events.rate_window_s,
+                true_rate_for=self._true_rate_for if self.site.truth is not None else None)
             self._start_processing(stack)
             self._start_health(stack)
             self._start_acquisition(stack)
@@ -205,6 +214,7 @@ class Appliance:
         self.geometry = self._geometry()
         defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
+        self.emission = emission_setup(cfg)
         self._workers_done = threading.Event()
         self._previous_handlers: dict[int, Any] = {}
 
@@ -259,6 +269,8 @@ class Appliance:
         self._mp = mp.get_context("spawn")
         self._results = self._mp.Queue(maxsize=64)
         self._stop_workers = self._mp.Event()
+        # The anemometer's sonic temperature (K) for the workers' gas temperature.
+        self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
         stack.callback(self._stop_processing)
         if cfg.processing.enabled:
             for i in range(cfg.processing.workers):
@@ -270,7 +282,8 @@ class Appliance:
     def _start_worker(self, i: int) -> Any:
         p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                              args=(i, self.ring.handle(), self._results, self._stop_workers,
-                                   self.geometry, self.params, self.cfg.processing.workers),
+                                   self.geometry, self.params, self.cfg.processing.workers,
+                                   self.emission, self.sonic_k),
                              daemon=True)
         p.start()
         return p
@@ -289,8 +302,7 @@ class Appliance:
         from appliance.runtime.monitor import monitor_from_config
 
         assert self.geometry is not None and self.site is not None
-        true_rate = (self.cfg.simulation.release_rate_g_s if self.site.truth is not None
-                     else None)
+        true_rate = self.site.truth.mean_release_g_s if self.site.truth is not None else None
         return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
                                    on_event=self._on_event, true_rate_g_s=true_rate)
 
@@ -339,6 +351,7 @@ class Appliance:
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
+        self.acquisition.sonic_k = getattr(self, "sonic_k", None)
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
@@ -420,3 +433,18 @@ class Appliance:
         from appliance.runtime.counters import health_counters
 
         return health_counters(self)
+
+
+def emission_setup(cfg: Config) -> EmissionSetup | None:
+    """The workers' emission settings from the ``emission`` section (None: disabled);
+    ValueError for a bad gas file (a configuration error)."""
+    from processing.emission.estimator import EmissionSettings
+    from processing.emission.gas import METHANE, load_gas
+
+    em = cfg.emission
+    if not em.enabled:
+        return None
+    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
+    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
+                                          background_frames=em.background_frames),
+                         em.gas_temperature_k)

@@ -117,6 +117,12 @@ class SceneTruth:
             v, mask = triplet_reference(frames[i], frames[i + 1])
             self._means.append(v[mask].astype(np.float64).mean(axis=0) if mask.any() else None)
         self._means.append(None)  # frame n-1 starts a triple that wraps
+        # The true release of every frame (scenes since issue 13), else the nominal one.
+        nominal = float(meta.get("release_rate_g_s", 0.0))
+        self.release_g_s = [nominal if f.release_rate_g_s is None else f.release_rate_g_s
+                            for f in frames]
+        #: Mean true release rate over the loop, g/s (what the measured rate should reach).
+        self.mean_release_g_s = float(np.mean(self.release_g_s))
 
     def mean_velocity(self, k0: int) -> np.ndarray | None:
         i = int(k0) % self.n_frames
