@@ -214,7 +214,7 @@ class Appliance:
         self.geometry = self._geometry()
         defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
-        self.emission = emission_setup(cfg)
+        self.emission = emission_setup(cfg, self.site.truth)
         self._workers_done = threading.Event()
         self._previous_handlers: dict[int, Any] = {}
 
@@ -435,9 +435,14 @@ class Appliance:
         return health_counters(self)
 
 
-def emission_setup(cfg: Config) -> EmissionSetup | None:
+def emission_setup(cfg: Config, truth: Any = None) -> EmissionSetup | None:
     """The workers' emission settings from the ``emission`` section (None: disabled);
-    ValueError for a bad gas file (a configuration error)."""
+    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
+    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
+    gas absorption as the gas-cell calibration, and its gas temperature."""
+    from dataclasses import replace
+
+    from processing.calibration.radiometric import CharacteristicCurve
     from processing.emission.estimator import EmissionSettings
     from processing.emission.gas import METHANE, load_gas
 
@@ -445,6 +450,18 @@ def emission_setup(cfg: Config) -> EmissionSetup | None:
     if not em.enabled:
         return None
     gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
+    curve, t_gas = None, em.gas_temperature_k
+    if truth is not None:
+        counts = truth.meta["counts_model"]["left"]
+        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
+        rad = truth.meta["radiometry"]
+        if em.gas_file is None:
+            gas = replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                          source="the simulated scene's")
+        if t_gas is None:
+            # The simulated anemometer's sonic temperature is not the scene's gas
+            # temperature (the renderer's plume is colder than the air around it).
+            t_gas = float(rad["t_gas_k"])
     return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
                                           background_frames=em.background_frames),
-                         em.gas_temperature_k)
+                         t_gas, curve)

@@ -108,6 +108,7 @@ class SceneTruth:
 
     def __init__(self, folder: Path) -> None:
         meta = read_sequence_meta(folder)
+        self.meta = meta
         self.n_frames = int(meta["n_frames"])
         self.camera = dict(meta["camera"])
         self.wind_m_s = tuple(float(w) for w in meta.get("wind_m_s", (0.0, 0.0, 0.0)))

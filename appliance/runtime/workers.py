@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from appliance.live import MAX_ARROWS
+from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
 from processing.emission.estimator import (
     DEFAULT_GAS_TEMPERATURE_K,
@@ -80,15 +81,22 @@ class EmissionSetup:
     """What a worker needs for the emission rate (picklable).
 
     ``gas_temperature_k`` None: the anemometer's sonic temperature, shared by the daemon
-    through a ``multiprocessing.Value`` (NaN until the first sample).
+    through a ``multiprocessing.Value`` (NaN until the first sample). ``curve_left``: the
+    left camera's characteristic curve when the geometry has none (the simulated site's
+    known counts model); without any, counts are not radiance and there is no rate.
     """
 
     settings: EmissionSettings
     gas_temperature_k: float | None = None
+    curve_left: CharacteristicCurve | None = None
 
-    def estimator(self, geometry: StereoGeometry) -> EmissionEstimator:
+    def estimator(self, geometry: StereoGeometry) -> EmissionEstimator | None:
+        """The estimator, or None without a radiometric calibration."""
+        curve = geometry.curve_left or self.curve_left
+        if curve is None:
+            return None
         return EmissionEstimator(self.settings, geometry.principal_point,
-                                 geometry.camera_constant, geometry.curve_left)
+                                 geometry.camera_constant, curve)
 
     def temperature_k(self, sonic_k: Any = None) -> float:
         """The gas temperature now: configured, else the sonic one, else 15 degC."""
@@ -96,6 +104,10 @@ class EmissionSetup:
             return self.gas_temperature_k
         t = float("nan") if sonic_k is None else float(sonic_k.value)
         return t if np.isfinite(t) and 150.0 < t < 400.0 else DEFAULT_GAS_TEMPERATURE_K
+
+
+#: The rate of a frame when the cameras have no radiometric calibration.
+NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
 
 
 def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneFlowResult,
@@ -243,6 +255,8 @@ def worker_main(
                 if estimator is not None and emission is not None:
                     base.rate = emission_rate(estimator, left[1], res,
                                               emission.temperature_k(sonic_k))
+                elif emission is not None:
+                    base.rate = NO_RADIOMETRY
             except ValueError as exc:  # bad frames: reported, the worker goes on
                 base.error = f"{type(exc).__name__}: {exc}"
             except Exception:
