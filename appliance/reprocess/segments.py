@@ -212,7 +212,7 @@ def process_into(
         publisher.wind_at = history.at
     report = run_segments(rec, geometry, params, segments, publisher,
                           fields_every=fields_every, pace=pace, on_triple=on_triple,
-                          emission=recorded_emission(rec.config, wind))
+                          emission=recorded_emission(rec.meta, rec.config, wind))
     return report, publisher
 
 
@@ -257,14 +257,22 @@ def _until(pairs: PairStream, last: int) -> Iterator[tuple[int, Any]]:
             close()
 
 
-def recorded_emission(config: dict[str, Any], wind: Sequence[dict[str, Any]]) -> Any:
-    """The emission settings of a recording's configuration (None: disabled). The gas
-    temperature is the configured one, else the median recorded sonic temperature; a gas
-    file that is no longer readable falls back to methane (warned)."""
+def recorded_emission(meta: Any, config: dict[str, Any],
+                      wind: Sequence[dict[str, Any]]) -> Any:
+    """The emission settings a recording was made with (None: disabled): its ``emission``
+    metadata when it has one, else its configuration, where the gas temperature is the
+    configured one or the median recorded sonic temperature, and a gas file that is no
+    longer readable falls back to methane (warned)."""
     from appliance.runtime.workers import EmissionSetup
     from processing.emission.estimator import EmissionSettings
     from processing.emission.gas import METHANE, load_gas
 
+    recorded = (meta.get("emission", {}) or {}).get("json")
+    if recorded:
+        try:
+            return EmissionSetup.from_json(recorded)
+        except ValueError as exc:
+            print(f"warning: {exc}; using the recorded configuration", file=sys.stderr)
     em = config.get("emission", {}) or {}
     if not em.get("enabled", True):
         return None

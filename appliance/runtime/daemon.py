@@ -237,6 +237,8 @@ class Appliance:
         metadata = file_metadata(cfg, cal_text)
         assert self.geometry is not None
         metadata.update(processing_metadata(self.geometry, self.params))
+        if self.emission is not None:  # replay computes the rate as this run did
+            metadata["emission"] = {"json": self.emission.to_json()}
         if rc.split:
             self.clips = ClipKeeper(rc.dir / "raw", rc.dir / "events", pre_s=rc.pre_trigger_s,
                                     post_s=rc.post_trigger_s, quota_gb=rc.events_quota_gb)

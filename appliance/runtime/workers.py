@@ -90,6 +90,40 @@ class EmissionSetup:
     gas_temperature_k: float | None = None
     curve_left: CharacteristicCurve | None = None
 
+    def to_json(self) -> str:
+        """The setup as JSON (the recording's ``emission`` metadata, so replay uses it)."""
+        import dataclasses
+        import json
+
+        st = self.settings
+        curve = self.curve_left
+        return json.dumps({
+            "gas": dataclasses.asdict(st.gas), "pressure_pa": st.pressure_pa,
+            "background_frames": st.background_frames,
+            "gas_temperature_k": self.gas_temperature_k,
+            "curve_left": None if curve is None else {"offset": curve.offset,
+                                                      "gain": curve.gain}})
+
+    @classmethod
+    def from_json(cls, text: str) -> EmissionSetup:
+        """Inverse of :meth:`to_json` (ValueError on a malformed record)."""
+        import json
+
+        from processing.emission.gas import GasProperties
+
+        try:
+            d = json.loads(text)
+            curve = d.get("curve_left")
+            return cls(EmissionSettings(gas=GasProperties(**d["gas"]),
+                                        pressure_pa=float(d["pressure_pa"]),
+                                        background_frames=int(d["background_frames"])),
+                       None if d["gas_temperature_k"] is None
+                       else float(d["gas_temperature_k"]),
+                       None if curve is None else CharacteristicCurve(
+                           offset=float(curve["offset"]), gain=float(curve["gain"])))
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"bad emission metadata: {exc}") from None
+
     def estimator(self, geometry: StereoGeometry) -> EmissionEstimator | None:
         """The estimator, or None without a radiometric calibration."""
         curve = geometry.curve_left or self.curve_left
