@@ -6,7 +6,6 @@ A thin argparse layer over :mod:`appliance.evaluation.emission`.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -76,9 +75,5 @@ def run(args: argparse.Namespace) -> int:
           "through the same curtains; means over triples)")
     print(ev.format_table(results))
     if args.json is not None:
-        try:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps(ev.public(results), indent=2) + "\n")
-        except OSError as exc:
-            raise cli.CommandError(f"cannot write {args.json}: {exc}") from exc
+        cli.write_json(args.json, ev.public(results))
     return cli.EXIT_OK
