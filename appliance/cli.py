@@ -16,6 +16,7 @@ import argparse
 import importlib
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from appliance import __version__
 from appliance.exitcodes import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
@@ -35,6 +36,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "appliance.commands.export",
     "appliance.commands.bench",
     "appliance.commands.eval_sceneflow",
+    "appliance.commands.eval_emission",
     "appliance.commands.eval_robustness",
     "appliance.commands.replay",
     "appliance.commands.reprocess",
@@ -60,6 +62,18 @@ def command_group(
         groups[name] = parser.add_subparsers(dest=f"{name}_command", metavar="COMMAND")
         groups[name].required = True
     return groups[name]
+
+
+def write_json(path: Path, obj: object) -> None:
+    """Write a command's ``--json`` result (indented, parent folders made); a failure is a
+    :class:`CommandError` naming the file."""
+    import json
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(obj, indent=2) + "\n")
+    except OSError as exc:
+        raise CommandError(f"cannot write {path}: {exc}") from exc
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -20,6 +20,7 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from appliance import cli
@@ -148,8 +149,36 @@ def test_replay_reprocesses_every_triple_and_export_writes_csv(recorded: dict,
         rows = list(csv.DictReader(f))
     assert len(rows) == pairs - 2
     assert {"vx_m_s", "speed_m_s", "angle_x_deg", "valid", "flags"} <= set(rows[0])
+    # The replay computes the emission rate too, and the export carries it.
+    assert {"emission_rate_g_s", "emission_window_rate_kg_h"} <= set(rows[0])
+    assert any(r["emission_window_rate_g_s"] not in ("", None) for r in rows)
     assert cli.main(["export", str(out), "--to", "npz", "--out", str(tmp_path / "y")]) == 0
     assert (tmp_path / "y.npz").is_file()
+    with np.load(tmp_path / "y.npz") as z:
+        assert "summary_emission_rate_g_s" in z.files
+
+
+def test_summaries_carry_the_emission_rate_and_its_truth(recorded: dict) -> None:
+    """Every summary of the simulated run has the frame's and the window's rate (g/s and
+    kg/h, or null with a reason) and the simulator's true release; the end comparison
+    exists. Coarse test scene, a few seconds: only a loose bound on the value (the README
+    reports the 100 s run of the default configuration)."""
+    from appliance.recording.reader import iter_json
+
+    _r, msgs = iter_json(recorded["files"][0], ["/sceneflow/summary"])
+    rows = [m for _t, m in msgs]
+    assert rows and all("emission_window_rate_g_s" in m and "emission_reason" in m
+                        for m in rows)
+    assert all(m["emission_true_rate_g_s"] > 0 for m in rows
+               if m.get("emission_true_rate_g_s") is not None)
+    rated = [m for m in rows if m["emission_rate_g_s"] is not None]
+    assert rated, [m["emission_reason"] for m in rows]
+    assert all(m["emission_rate_kg_h"] == pytest.approx(3.6 * m["emission_rate_g_s"])
+               for m in rated)
+    comparison = recorded["app"].publisher.rate_comparison()
+    assert comparison is not None
+    measured, true, _err = comparison
+    assert 0.0 < measured < 5.0 * true
 
 
 def test_replay_refuses_to_overwrite_and_names_bad_params(recorded: dict, tmp_path: Path) -> None:

@@ -7,7 +7,6 @@ A thin argparse layer over :mod:`appliance.evaluation.sceneflow` (the evaluation
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -108,9 +107,5 @@ def run(args: argparse.Namespace) -> int:
         if undef:
             print(f"{name}: frames with undefined metrics (left out of the means): {undef}")
     if args.json is not None:
-        try:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps(ev.public(results), indent=2) + "\n")
-        except OSError as exc:
-            raise cli.CommandError(f"cannot write {args.json}: {exc}") from exc
+        cli.write_json(args.json, ev.public(results))
     return cli.EXIT_OK

@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from appliance.recording.tables import (
         SUMMARY_COLUMNS,
         WIND_COLUMNS,
+        summary_columns,
         summary_row,
         wind_row,
         write_parquet,
@@ -60,9 +61,10 @@ def run(args: argparse.Namespace) -> int:
         if n % 500 == 0:
             progress(reader.bytes_read, reader.size)
     progress(reader.size, reader.size)
+    summary_cols = summary_columns(summaries)  # the emission columns when recorded
     if args.to == "csv":
         paths = [Path(f"{out}_summary.csv"), Path(f"{out}_wind.csv")]
-        for path, rows, cols in ((paths[0], summaries, SUMMARY_COLUMNS),
+        for path, rows, cols in ((paths[0], summaries, summary_cols),
                                  (paths[1], winds, WIND_COLUMNS)):
             with open(path, "w", newline="") as f:
                 w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
@@ -74,11 +76,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         paths = [Path(f"{out}.npz")]
         arrays: dict[str, np.ndarray] = {}
-        for prefix, rows, cols in (("summary", summaries, SUMMARY_COLUMNS),
+        for prefix, rows, cols in (("summary", summaries, summary_cols),
                                    ("wind", winds, WIND_COLUMNS)):
             for c in cols:
-                values = [r[c] for r in rows]
-                if c in ("flags", "source", "status"):
+                values = [r.get(c) for r in rows]
+                if c in ("flags", "source", "status") or any(isinstance(v, str)
+                                                             for v in values):
                     arrays[f"{prefix}_{c}"] = np.array(["" if v is None else str(v)
                                                         for v in values])
                 else:

@@ -47,6 +47,11 @@ def register(root: argparse._SubParsersAction) -> None:
     p.add_argument("--baseline", type=float, metavar="M",
                    help="stereo baseline b in m (default 0.2; field preset 0.3)")
     p.add_argument("--release-rate", type=float, metavar="G_S", help="mean release rate in g/s")
+    p.add_argument("--distance", type=float, metavar="M",
+                   help="distance of the plume from the cameras in m (field preset only; "
+                        "default 5.5)")
+    p.add_argument("--name", metavar="NAME",
+                   help="name of the sequence folder (one preset only; default: the preset's)")
     p.add_argument("--necl", type=float, metavar="PPM_M",
                    help="detection limit for the ground-truth gas mask, ppm*m (default 100)")
     p.add_argument("--grid-scale", type=float, default=1.0, metavar="F",
@@ -111,7 +116,15 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
             kwargs["b_m"] = args.baseline
         if args.release_rate is not None:
             kwargs["release_rate_g_s"] = args.release_rate
+        if args.distance is not None:
+            if not 1.0 <= args.distance <= 100.0:
+                raise ValueError(f"--distance must be within 1..100 m, got {args.distance}")
+            kwargs["distance_m"] = args.distance
+    elif args.distance is not None:
+        raise ValueError("--distance applies to the field preset only")
     cfg = preset(name, **kwargs)
+    if args.name is not None:
+        cfg = replace(cfg, name=args.name)
     fluid = cfg.fluid
     if name != "field":
         if args.wind is not None:
@@ -173,6 +186,8 @@ def run(args: argparse.Namespace) -> int:
     from processing.synthetic.storage import META_NAME, write_meta, write_sequence
 
     names = _expand_presets(args.preset)
+    if args.name is not None and len(names) != 1:
+        raise ValueError("--name needs exactly one preset")
     configs = [_build_config(n, args) for n in names]
     out: Path = args.out
     if out.exists() and not out.is_dir():

@@ -260,6 +260,22 @@ class EventsConfig:
 
 
 @dataclass(frozen=True)
+class EmissionConfig:
+    """Emission rate (processing.emission): how much gas escapes, g/s and kg/h."""
+
+    enabled: bool = _opt("compute the emission rate of every processed frame", True)
+    gas_file: Path | None = _opt(
+        "gas file from `ogiflow calibrate gascell` (molar mass, absorption); null = methane "
+        "with the literature absorption coefficient", None)
+    gas_temperature_k: float | None = _opt(
+        "gas temperature, K; null = the anemometer's sonic temperature (ambient air), "
+        "288.15 K until it reports one", None, min=150.0, max=400.0)
+    pressure_pa: float = _opt("ambient pressure, Pa", 101325.0, min=50_000.0, max=120_000.0)
+    background_frames: int = _opt("frames (per worker) of the background radiance model", 60,
+                                  min=8, max=10_000)
+
+
+@dataclass(frozen=True)
 class MqttAlarmConfig:
     """MQTT alarms (appliance.alarms.mqtt): status, events and summaries for the plant."""
 
@@ -306,4 +322,5 @@ class Config:
     simulation: SimulationConfig = _opt("scene of the simulated cameras",
                                         factory=SimulationConfig)
     events: EventsConfig = _opt("leak events", factory=EventsConfig)
+    emission: EmissionConfig = _opt("emission rate", factory=EmissionConfig)
     alarms: AlarmsConfig = _opt("alarm sinks", factory=AlarmsConfig)

@@ -143,6 +143,20 @@ SCENEFLOW_SUMMARY = _json_schema(
         "valid": {"type": "boolean"},
         "flags": {"type": "array", "items": {"type": "string"},
                   "description": "quality flags, e.g. no_gas, low_quality"},
+        "emission_rate_g_s": {**_NUM_OR_NULL, "description": "emission rate of this frame "
+                              "(mean over its curtains), g/s; null: undefined, see reason"},
+        "emission_rate_kg_h": {**_NUM_OR_NULL, "description": "the same in kg/h"},
+        "emission_reason": {"type": "string", "description": "why the frame has no rate"},
+        "emission_window_rate_g_s": {**_NUM_OR_NULL, "description": "mean rate over the "
+                                     "window ending at this frame, g/s"},
+        "emission_window_rate_kg_h": {**_NUM_OR_NULL, "description": "the same in kg/h"},
+        "emission_window_uncertainty_g_s": {**_NUM_OR_NULL, "minimum": 0, "description":
+                                            "one standard uncertainty of the window rate"},
+        "emission_window_s": {**_NUM, "minimum": 0, "description": "window length, s"},
+        "emission_window_frames": {**_INT, "minimum": 0,
+                                   "description": "frames with a rate in the window"},
+        "emission_true_rate_g_s": {**_NUM_OR_NULL, "description": "simulated runs: the "
+                                   "simulator's true release rate at this frame, g/s"},
     },
     ["t_mono_ns", "t_wall_ns", "pair_index", "gas_pixels", "mean_velocity_m_s", "speed_m_s",
      "angles_deg", "c_usf", "valid", "flags"],

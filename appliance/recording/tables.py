@@ -52,6 +52,14 @@ def summary_row(m: Mapping[str, Any]) -> dict[str, Any]:
     return row
 
 
+def summary_columns(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """:data:`SUMMARY_COLUMNS` and the pass-through (emission) keys any row has, in order."""
+    cols = list(SUMMARY_COLUMNS)
+    for r in rows:
+        cols.extend(k for k in r if k not in cols)
+    return cols
+
+
 def wind_row(topic: str, m: Mapping[str, Any]) -> dict[str, Any]:
     """A ``/wind/raw`` or ``/wind/camera`` message as a row of :data:`WIND_COLUMNS`."""
     if topic == "/wind/raw":

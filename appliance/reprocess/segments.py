@@ -19,6 +19,7 @@ on the order segments ran in - which is what makes ``ogiflow reprocess`` and
 from __future__ import annotations
 
 import collections
+import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -83,6 +84,7 @@ def run_segments(
     fields_every: int = 1,
     pace: bool = False,
     on_triple: Callable[[SegmentReport], None] | None = None,
+    emission: Any = None,
 ) -> SegmentReport:
     """Process ``segments`` (ascending, of one recording) and publish their results.
 
@@ -104,6 +106,9 @@ def run_segments(
         Run at the recorded pace (for watching live) instead of as fast as possible.
     on_triple : callable, optional
         Called with the running report after each triple (progress display).
+    emission : appliance.runtime.workers.EmissionSetup, optional
+        Compute every triple's emission rate (its background model starts anew with each
+        segment, like the chain).
 
     Returns
     -------
@@ -111,13 +116,20 @@ def run_segments(
         ``truncated`` when the recording ends inside a record (cut by a crash):
         everything up to the cut was processed.
     """
-    from appliance.runtime.workers import WorkerResult, compute_scene_flow_on, pack_result
+    from appliance.runtime.workers import (
+        NO_RADIOMETRY,
+        WorkerResult,
+        compute_scene_flow_on,
+        emission_rate,
+        pack_result,
+    )
 
     owner = _Owner(segments)
     report = SegmentReport()
     pairs = PairStream(rec)
     window: collections.deque[tuple[int, Any]] = collections.deque(maxlen=3)
     state = ChainState()
+    estimator = None if emission is None else emission.estimator(geometry)
     t_start = time.monotonic()
     t_first: int | None = None
     for index, pair in _until(pairs, owner.last_needed):
@@ -129,6 +141,7 @@ def run_segments(
             continue
         if owner.starts_segment(k):
             state = ChainState()  # cold start at every segment border (module docstring)
+            estimator = None if emission is None else emission.estimator(geometry)
         if pace:
             t_first = pair.time_ns if t_first is None else t_first
             ahead = (pair.time_ns - t_first) / 1e9 - (time.monotonic() - t_start)
@@ -141,8 +154,12 @@ def run_segments(
         left = np.stack([p.left.image for p in trio]).astype(np.uint16, copy=False)
         right = np.stack([p.right.image for p in trio]).astype(np.uint16, copy=False)
         try:
-            pack_result(compute_scene_flow_on(left, right, t_mono, geometry, params, state),
-                        base)
+            res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
+            pack_result(res, base)
+            if estimator is not None and emission is not None:
+                base.rate = emission_rate(estimator, left[1], res, emission.temperature_k())
+            elif emission is not None:
+                base.rate = NO_RADIOMETRY
             report.triples += 1
         except ValueError as exc:
             base.error = str(exc)
@@ -186,13 +203,16 @@ def process_into(
     wind = read_wind(rec.path)
     if copy_wind:
         sink.record_wind(wind, rec.wall_offset_ns)
+    events = rec.config.get("events", {}) or {}
     publisher = ResultPublisher(sink, live, rec.wall_ns, fields_every,
-                                keep_summaries=keep_summaries)
+                                keep_summaries=keep_summaries,
+                                rate_window_s=float(events.get("rate_window_s", 30.0)))
     history = wind_history(rec, wind)
     if history is not None:
         publisher.wind_at = history.at
     report = run_segments(rec, geometry, params, segments, publisher,
-                          fields_every=fields_every, pace=pace, on_triple=on_triple)
+                          fields_every=fields_every, pace=pace, on_triple=on_triple,
+                          emission=recorded_emission(rec.meta, rec.config, wind))
     return report, publisher
 
 
@@ -235,3 +255,38 @@ def _until(pairs: PairStream, last: int) -> Iterator[tuple[int, Any]]:
         close = getattr(it, "close", None)
         if close is not None:
             close()
+
+
+def recorded_emission(meta: Any, config: dict[str, Any],
+                      wind: Sequence[dict[str, Any]]) -> Any:
+    """The emission settings a recording was made with (None: disabled): its ``emission``
+    metadata when it has one, else its configuration, where the gas temperature is the
+    configured one or the median recorded sonic temperature, and a gas file that is no
+    longer readable falls back to methane (warned)."""
+    from appliance.runtime.workers import EmissionSetup
+    from processing.emission.estimator import EmissionSettings
+    from processing.emission.gas import METHANE, load_gas
+
+    recorded = (meta.get("emission", {}) or {}).get("json")
+    if recorded:
+        try:
+            return EmissionSetup.from_json(recorded)
+        except ValueError as exc:
+            print(f"warning: {exc}; using the recorded configuration", file=sys.stderr)
+    em = config.get("emission", {}) or {}
+    if not em.get("enabled", True):
+        return None
+    gas = METHANE
+    if em.get("gas_file"):
+        try:
+            gas = load_gas(em["gas_file"])
+        except (OSError, ValueError) as exc:
+            print(f"warning: recorded gas file unusable ({exc}); methane", file=sys.stderr)
+    t_gas = em.get("gas_temperature_k")
+    if t_gas is None:
+        sonic = [m["sonic_temperature_c"] for m in wind
+                 if m.get("sonic_temperature_c") is not None]
+        t_gas = float(np.median(sonic)) + 273.15 if sonic else None
+    settings = EmissionSettings(gas=gas, pressure_pa=float(em.get("pressure_pa", 101325.0)),
+                                background_frames=int(em.get("background_frames", 60)))
+    return EmissionSetup(settings, None if t_gas is None else float(t_gas))

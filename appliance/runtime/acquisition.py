@@ -94,6 +94,8 @@ class Acquisition:
         self.watchdog = watchdog
         self._last_frame_id: dict[str, int | None] = {s: None for s in SIDES}
         self.anemometer: Any = None
+        #: multiprocessing.Value the workers read the gas temperature from (K), or None.
+        self.sonic_k: Any = None
         self._frame_q: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=512)
         self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
             collections.OrderedDict())
@@ -243,6 +245,9 @@ class Acquisition:
         """Reader-thread callback: record the raw sample (never blocks)."""
         self.counters.wind_samples += 1
         self.health.stream("wind").tick()
+        t_sonic = sample.sonic_temperature
+        if self.sonic_k is not None and t_sonic is not None and np.isfinite(t_sonic):
+            self.sonic_k.value = float(t_sonic) + 273.15  # the workers' gas temperature
         self.publisher.record_json("/wind/raw", schemas.WIND_SAMPLE, {
             "t_mono_ns": sample.host_ns, "t_wall_ns": self.wall_ns(sample.host_ns),
             "t_device": sample.counter, "sensor": self.cfg.anemometer.protocol,

@@ -41,6 +41,23 @@ def announce_end(app: Any) -> None:
             f"{_fmt(comparison['measured_m_s'])} m/s, magnitude error "
             f"{comparison['magnitude_error_pct']:.1f} %, direction error "
             f"{comparison['direction_error_deg']:.1f} deg\n")
+    rates = app.publisher.rate_comparison()
+    est = app.publisher.rate_window.estimate()
+    if est.rate_g_s is not None:
+        unc = "" if est.uncertainty_g_s is None else f" +- {est.uncertainty_g_s:.2f}"
+        sys.stderr.write(
+            f"ogiflow: emission rate (last {est.window_s:.0f} s, {est.frames} of "
+            f"{est.frames_total} frames with a rate): {est.rate_g_s:.2f}{unc} g/s = "
+            f"{est.rate_kg_h:.3f} kg/h\n")
+    elif app.publisher.published:
+        sys.stderr.write("ogiflow: emission rate: undefined (no frame with a rate in the "
+                         "last window)\n")
+    if rates is not None:
+        measured, true, err = rates
+        sys.stderr.write(
+            f"ogiflow: simulated release rate {true:.2f} g/s ({true * 3.6:.3f} kg/h), "
+            f"measured {measured:.2f} g/s ({measured * 3.6:.3f} kg/h), error "
+            f"{'n/a' if err is None else f'{100 * err:+.1f} %'}\n")
 
 
 def _fmt(v: Any) -> str:

@@ -43,7 +43,7 @@ from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.workers import WorkerResult, worker_main
+from appliance.runtime.workers import EmissionSetup, WorkerResult, worker_main
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -147,6 +147,14 @@ class Appliance:
         k0, k2 = self.acquisition.frame_ids(pair_index0, pair_index0 + 2)
         return self.site.true_velocity(k0, k2)
 
+    def _true_rate_for(self, pair_index: int) -> float | None:
+        """Simulator's true release rate (g/s) at the scene frame of pair ``pair_index``."""
+        if self.site is None or self.site.truth is None or self.acquisition is None:
+            return None
+        (k,) = self.acquisition.frame_ids(pair_index)
+        truth = self.site.truth
+        return None if k is None else truth.release_g_s[int(k) % len(truth.release_g_s)]
+
     # ------------------------------------------------------------------ run
 
     def run(self) -> int:
@@ -168,7 +176,8 @@ class Appliance:
                 self.recorder, self.live, self.wall_ns, self.cfg.recording.fields_every,
                 wind_at=self.history.at,
                 truth_for=self._truth_for if self.site.truth is not None else None,
-                monitor=self.monitor)
+                monitor=self.monitor, rate_window_s=self.cfg.events.rate_window_s,
+                true_rate_for=self._true_rate_for if self.site.truth is not None else None)
             self._start_processing(stack)
             self._start_health(stack)
             self._start_acquisition(stack)
@@ -206,6 +215,7 @@ class Appliance:
         self.geometry = self._geometry()
         defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
+        self.emission = emission_setup(cfg, self.site.truth)
         self._workers_done = threading.Event()
         self._previous_handlers: dict[int, Any] = {}
 
@@ -228,6 +238,8 @@ class Appliance:
         metadata = file_metadata(cfg, cal_text)
         assert self.geometry is not None
         metadata.update(processing_metadata(self.geometry, self.params))
+        if self.emission is not None:  # replay computes the rate as this run did
+            metadata["emission"] = {"json": self.emission.to_json()}
         if rc.split:
             self.clips = ClipKeeper(rc.dir / "raw", rc.dir / "events", pre_s=rc.pre_trigger_s,
                                     post_s=rc.post_trigger_s, quota_gb=rc.events_quota_gb)
@@ -261,6 +273,8 @@ class Appliance:
         self._results = self._mp.Queue(maxsize=64)
         self._stop_workers = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
+        # The anemometer's sonic temperature (K) for the workers' gas temperature.
+        self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
         stack.callback(self._stop_processing)
         if cfg.processing.enabled:
             for i in range(cfg.processing.workers):
@@ -273,7 +287,7 @@ class Appliance:
         p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                              args=(i, self.ring.handle(), self._results, self._stop_workers,
                                    self.geometry, self.params, self.cfg.processing.workers,
-                                   self._shift_table),
+                                   self.emission, self.sonic_k, self._shift_table),
                              daemon=True)
         p.start()
         return p
@@ -292,8 +306,7 @@ class Appliance:
         from appliance.runtime.monitor import monitor_from_config
 
         assert self.geometry is not None and self.site is not None
-        true_rate = (self.cfg.simulation.release_rate_g_s if self.site.truth is not None
-                     else None)
+        true_rate = self.site.truth.mean_release_g_s if self.site.truth is not None else None
         return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
                                    on_event=self._on_event, true_rate_g_s=true_rate)
 
@@ -342,6 +355,7 @@ class Appliance:
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
+        self.acquisition.sonic_k = getattr(self, "sonic_k", None)
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
@@ -423,3 +437,35 @@ class Appliance:
         from appliance.runtime.counters import health_counters
 
         return health_counters(self)
+
+
+def emission_setup(cfg: Config, truth: Any = None) -> EmissionSetup | None:
+    """The workers' emission settings from the ``emission`` section (None: disabled);
+    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
+    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
+    gas absorption as the gas-cell calibration, and its gas temperature."""
+    from dataclasses import replace
+
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.emission.estimator import EmissionSettings
+    from processing.emission.gas import METHANE, load_gas
+
+    em = cfg.emission
+    if not em.enabled:
+        return None
+    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
+    curve, t_gas = None, em.gas_temperature_k
+    if truth is not None:
+        counts = truth.meta["counts_model"]["left"]
+        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
+        rad = truth.meta["radiometry"]
+        if em.gas_file is None:
+            gas = replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                          source="the simulated scene's")
+        if t_gas is None:
+            # The simulated anemometer's sonic temperature is not the scene's gas
+            # temperature (the renderer's plume is colder than the air around it).
+            t_gas = float(rad["t_gas_k"])
+    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
+                                          background_frames=em.background_frames),
+                         t_gas, curve)

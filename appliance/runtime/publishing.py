@@ -17,6 +17,7 @@ import numpy as np
 
 from appliance.recording import schemas
 from appliance.runtime.workers import WorkerResult
+from processing.emission.rate import RateWindow
 from processing.summary import directional_angles
 
 
@@ -39,12 +40,18 @@ class ResultPublisher:
         Gets every result for the leak events, the rate window and the operator's status.
     keep_summaries : bool
         Keep every published summary in :attr:`summaries` (bounded runs only).
+    rate_window_s : float
+        Window of the emission-rate average that the summaries carry, s.
+    true_rate_for : callable, optional
+        Pair index of t1 -> the simulator's true release rate, g/s (simulated runs).
     """
 
     def __init__(self, recorder: Any, live: Any, wall_ns: Callable[[int], int],
                  fields_every: int, *, wind_at: Callable[[int], Any] | None = None,
                  truth_for: Callable[[int], np.ndarray | None] | None = None,
-                 monitor: Any = None, keep_summaries: bool = False) -> None:
+                 monitor: Any = None, keep_summaries: bool = False,
+                 rate_window_s: float = 30.0,
+                 true_rate_for: Callable[[int], float | None] | None = None) -> None:
         self.recorder = recorder
         self.live = live
         self.wall_ns = wall_ns
@@ -52,6 +59,9 @@ class ResultPublisher:
         self.wind_at = wind_at
         self.truth_for = truth_for
         self.monitor = monitor
+        self.rate_window = RateWindow(rate_window_s)
+        self.true_rate_for = true_rate_for
+        self._rate_sums = [0.0, 0.0, 0]  # measured window rate, true rate, results with both
         self.published = 0
         self.errors = 0
         # Running sums for truth_comparison(): a list of every result would grow the
@@ -110,6 +120,8 @@ class ResultPublisher:
             else None,
             "skipped_pairs": int(res.skipped), "valid": bool(s.get("valid")), "flags": flags,
         }
+        if res.rate is not None:
+            summary.update(self._emission(res, t1))
         self.record_json("/sceneflow/summary", schemas.SCENEFLOW_SUMMARY, summary, t1)
         wind = self._wind(t1, res.pair_indices[1])
         truth = None if self.truth_for is None else self.truth_for(res.pair_indices[0])
@@ -126,8 +138,45 @@ class ResultPublisher:
             self._push_live(res, summary, wind, truth, t1)
         if self.monitor is not None and res.gas_mask is not None and res.flow is not None:
             self.monitor.on_result(summary["t_wall_ns"], res.pair_indices[1], res.gas_mask,
-                                   res.flow, summary, wind=wind)
+                                   res.flow, summary, wind=wind, rate=res.rate)
         return summary
+
+    def _emission(self, res: WorkerResult, t1: int) -> dict[str, Any]:
+        """The summary's emission keys: the frame's rate and the window's (g/s, kg/h)."""
+        rate = res.rate
+        assert rate is not None
+        est = self.rate_window.push(self.wall_ns(t1) / 1e9, rate)
+        true = None if self.true_rate_for is None else self.true_rate_for(res.pair_indices[1])
+        out = {
+            "emission_rate_g_s": rate.rate_g_s,
+            "emission_rate_kg_h": None if rate.rate_g_s is None else rate.rate_g_s * 3.6,
+            "emission_reason": rate.reason,
+            "emission_window_rate_g_s": est.rate_g_s,
+            "emission_window_rate_kg_h": est.rate_kg_h,
+            "emission_window_uncertainty_g_s": est.uncertainty_g_s,
+            "emission_window_s": est.window_s,
+            "emission_window_frames": est.frames,
+        }
+        if true is not None:
+            out["emission_true_rate_g_s"] = true
+            if est.rate_g_s is not None:
+                with self._lock:
+                    self._rate_sums[0] += est.rate_g_s
+                    self._rate_sums[1] += true
+                    self._rate_sums[2] += 1
+        return out
+
+    def rate_comparison(self) -> tuple[float, float, float | None] | None:
+        """(last window rate, mean true release, its relative error) of a simulated run;
+        None without a rate or a truth. The window of the last result is what the
+        appliance reports at the end."""
+        est = self.rate_window.estimate()
+        with self._lock:
+            n = self._rate_sums[2]
+            true = self._rate_sums[1] / n if n else None
+        if est.rate_g_s is None or true is None:
+            return None
+        return est.rate_g_s, true, (est.rate_g_s / true - 1.0) if true else None
 
     def record_event(self, kind: str, event: dict[str, Any]) -> None:
         """The ``/events`` message of a leak-event change (start, update, end)."""

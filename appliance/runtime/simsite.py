@@ -31,7 +31,7 @@ from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
-SCENE_VERSION = 1
+SCENE_VERSION = 2  # 2: time-correlated release, flux and release-rate truth (issue 13)
 #: Mean wind of the simulated anemometer when the config gives none, in Gill axes (U toward
 #: the north mark, V to its left, W up): with the default mounting (north mark along the
 #: optical axis) this is 1.5 m/s to the camera's right and 0.3 m/s away from it, a wind the
@@ -108,6 +108,7 @@ class SceneTruth:
 
     def __init__(self, folder: Path) -> None:
         meta = read_sequence_meta(folder)
+        self.meta = meta
         self.n_frames = int(meta["n_frames"])
         self.camera = dict(meta["camera"])
         self.wind_m_s = tuple(float(w) for w in meta.get("wind_m_s", (0.0, 0.0, 0.0)))
@@ -117,6 +118,12 @@ class SceneTruth:
             v, mask = triplet_reference(frames[i], frames[i + 1])
             self._means.append(v[mask].astype(np.float64).mean(axis=0) if mask.any() else None)
         self._means.append(None)  # frame n-1 starts a triple that wraps
+        # The true release of every frame (scenes since issue 13), else the nominal one.
+        nominal = float(meta.get("release_rate_g_s", 0.0))
+        self.release_g_s = [nominal if f.release_rate_g_s is None else f.release_rate_g_s
+                            for f in frames]
+        #: Mean true release rate over the loop, g/s (what the measured rate should reach).
+        self.mean_release_g_s = float(np.mean(self.release_g_s))
 
     def mean_velocity(self, k0: int) -> np.ndarray | None:
         i = int(k0) % self.n_frames

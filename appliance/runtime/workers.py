@@ -31,7 +31,14 @@ from typing import Any
 import numpy as np
 
 from appliance.live import MAX_ARROWS
+from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
+from processing.emission.estimator import (
+    DEFAULT_GAS_TEMPERATURE_K,
+    EmissionEstimator,
+    EmissionSettings,
+)
+from processing.emission.rate import FrameRate
 
 
 @dataclass
@@ -66,6 +73,88 @@ class WorkerResult:
     velocity3d: np.ndarray | None = None  # (N, 3) m/s
     pixels: np.ndarray | None = None  # (N, 2) int32 (x, y) of those gas pixels
     raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
+    rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
+
+
+@dataclass(frozen=True)
+class EmissionSetup:
+    """What a worker needs for the emission rate (picklable).
+
+    ``gas_temperature_k`` None: the anemometer's sonic temperature, shared by the daemon
+    through a ``multiprocessing.Value`` (NaN until the first sample). ``curve_left``: the
+    left camera's characteristic curve when the geometry has none (the simulated site's
+    known counts model); without any, counts are not radiance and there is no rate.
+    """
+
+    settings: EmissionSettings
+    gas_temperature_k: float | None = None
+    curve_left: CharacteristicCurve | None = None
+
+    def to_json(self) -> str:
+        """The setup as JSON (the recording's ``emission`` metadata, so replay uses it)."""
+        import dataclasses
+        import json
+
+        st = self.settings
+        curve = self.curve_left
+        return json.dumps({
+            "gas": dataclasses.asdict(st.gas), "pressure_pa": st.pressure_pa,
+            "background_frames": st.background_frames,
+            "gas_temperature_k": self.gas_temperature_k,
+            "curve_left": None if curve is None else {"offset": curve.offset,
+                                                      "gain": curve.gain}})
+
+    @classmethod
+    def from_json(cls, text: str) -> EmissionSetup:
+        """Inverse of :meth:`to_json` (ValueError on a malformed record)."""
+        import json
+
+        from processing.emission.gas import GasProperties
+
+        try:
+            d = json.loads(text)
+            curve = d.get("curve_left")
+            return cls(EmissionSettings(gas=GasProperties(**d["gas"]),
+                                        pressure_pa=float(d["pressure_pa"]),
+                                        background_frames=int(d["background_frames"])),
+                       None if d["gas_temperature_k"] is None
+                       else float(d["gas_temperature_k"]),
+                       None if curve is None else CharacteristicCurve(
+                           offset=float(curve["offset"]), gain=float(curve["gain"])))
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"bad emission metadata: {exc}") from None
+
+    def estimator(self, geometry: StereoGeometry) -> EmissionEstimator | None:
+        """The estimator, or None without a radiometric calibration."""
+        curve = geometry.curve_left or self.curve_left
+        if curve is None:
+            return None
+        return EmissionEstimator(self.settings, geometry.principal_point,
+                                 geometry.camera_constant, curve)
+
+    def temperature_k(self, sonic_k: Any = None) -> float:
+        """The gas temperature now: configured, else the sonic one, else 15 degC."""
+        if self.gas_temperature_k is not None:
+            return self.gas_temperature_k
+        t = float("nan") if sonic_k is None else float(sonic_k.value)
+        return t if np.isfinite(t) and 150.0 < t < 400.0 else DEFAULT_GAS_TEMPERATURE_K
+
+
+#: The rate of a frame when the cameras have no radiometric calibration.
+NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
+
+
+def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneFlowResult,
+                  gas_temperature_k: float) -> FrameRate:
+    """The stereo emission rate of one triple from the raw left frame at t1; a failure is a
+    rate with its reason, never a lost result."""
+    try:
+        return estimator.frame_rate(left_t1, flow=res.flow, velocity=res.velocity,
+                                    depth=res.position[..., 2], valid=res.valid,
+                                    gas_mask=res.gas_mask, dt_s=res.dt_s,
+                                    gas_temperature_k=gas_temperature_k)
+    except (ValueError, FloatingPointError) as exc:
+        return FrameRate(None, (), f"emission rate failed: {exc}")
 
 
 def _to_u8(image: np.ndarray) -> np.ndarray:
@@ -131,6 +220,8 @@ def worker_main(
     geometry: StereoGeometry,
     params: ChainParameters,
     n_workers: int = 1,
+    emission: EmissionSetup | None = None,
+    sonic_k: Any = None,
     shift_table: Any = None,
 ) -> None:
     """Body of one worker process; returns when ``stop`` (an Event) is set.
@@ -149,6 +240,10 @@ def worker_main(
         Stereo geometry and chain parameters (see :mod:`processing.chain`).
     n_workers : int
         How many workers share the stream (see the module docstring).
+    emission : EmissionSetup or None
+        Compute the emission rate of every triple (None: not at all).
+    sonic_k : multiprocessing.Value or None
+        The anemometer's latest sonic temperature, K (NaN: none yet).
     shift_table : shared array or None
         Registration shifts shared by the workers (:mod:`appliance.runtime.shiftshare`).
     """
@@ -168,6 +263,7 @@ def worker_main(
     # phase and take the newest window.
     max_lag = ring.capacity // 2 if n_workers <= 2 else None
     torn = 0
+    estimator = None if emission is None else emission.estimator(geometry)
     try:
         while not stop.is_set():
             lease = ring.take_newest(3, stride=stride, phase=phase, max_lag=max_lag)
@@ -195,6 +291,11 @@ def worker_main(
             try:
                 res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
                 pack_result(res, base, raw_left=left[0])
+                if estimator is not None and emission is not None:
+                    base.rate = emission_rate(estimator, left[1], res,
+                                              emission.temperature_k(sonic_k))
+                elif emission is not None:
+                    base.rate = NO_RADIOMETRY
             except ValueError as exc:  # bad frames: reported, the worker goes on
                 base.error = f"{type(exc).__name__}: {exc}"
             except Exception:

@@ -139,7 +139,8 @@ class CurtainFlux:
 def curtain_flux(curtain: Curtain, sigma_kg_m2: np.ndarray, velocity_m_s: np.ndarray,
                  depth_m: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray, *,
                  principal_point: tuple[float, float], camera_constant: float,
-                 max_filled: float = 0.5) -> CurtainFlux:
+                 max_filled: float = 0.5,
+                 column_mask: np.ndarray | None = None) -> CurtainFlux:
     """Q = sum_i sigma_i (V_i . n) ds_i through one curtain (module docstring).
 
     Parameters
@@ -160,6 +161,10 @@ def curtain_flux(curtain: Curtain, sigma_kg_m2: np.ndarray, velocity_m_s: np.nda
     max_filled : float
         Largest fraction of gas samples with invalid velocity/depth that may be filled from
         the curtain's valid ones (their median) before the curtain is undefined.
+    column_mask : ndarray, shape (H, W), bool, optional
+        Pixels whose column density is gas although the motion segmentation missed them
+        (faint plume edges: little contrast in the differential images). They count with
+        their sigma and the median velocity and depth of the curtain's valid gas samples.
 
     Returns
     -------
@@ -168,14 +173,19 @@ def curtain_flux(curtain: Curtain, sigma_kg_m2: np.ndarray, velocity_m_s: np.nda
     pts = curtain.samples()
     gas = sample_nearest(gas_mask, pts).astype(bool)
     n_gas = int(gas.sum())
+    faint = (np.zeros_like(gas) if column_mask is None
+             else sample_nearest(column_mask, pts).astype(bool))
     if n_gas == 0:
+        if faint.any():  # gas without a velocity: undefined, not zero
+            return CurtainFlux(0.0, False, 0, 1.0)
         return CurtainFlux(0.0, True, 0, 0.0)  # no gas crosses: a defined zero
     ok = sample_nearest(valid, pts).astype(bool) & gas
     n_ok = int(ok.sum())
     filled = 1.0 - n_ok / n_gas
     if n_ok == 0 or filled > max_filled:
         return CurtainFlux(0.0, False, n_gas, filled)
-    sigma = np.where(gas, sample_nearest(sigma_kg_m2, pts), 0.0)
+    counted = gas | faint
+    sigma = np.where(counted, sample_nearest(sigma_kg_m2, pts), 0.0)
     vel = sample_nearest(velocity_m_s, pts).astype(np.float64)
     z = sample_nearest(depth_m, pts).astype(np.float64)
     vel[~ok] = np.median(vel[ok], axis=0)

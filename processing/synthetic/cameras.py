@@ -102,4 +102,5 @@ class StereoRenderer:
             gt_velocity=gt.velocity, gt_position=gt.position, gt_mask=gt.mask,
             column_density_ppm_m=gt.column_density_ppm_m,
             jitter_left_px=jl, jitter_right_px=jr,
+            flux_moment_kg_s=gt.flux_moment_kg_s, release_rate_g_s=gt.release_rate_g_s,
         )

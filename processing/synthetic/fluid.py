@@ -64,9 +64,14 @@ class GasSource:
         source, as a fraction of ``max(|exit_velocity_m_s|, 1 m/s)``: a jet direction that
         wanders (AR(1), correlation ~10 steps) plus white noise per face.
     release_fluctuation : float
-        Relative standard deviation of the per-step release (puffing); its mean stays
+        Relative standard deviation of the release (puffing); its mean stays
         ``release_rate_g_s``. Puffs give the concentration texture that differential images
         need.
+    release_correlation_s : float
+        Correlation time of the release fluctuation, s: the multiplier is
+        ``max(0, 1 + release_fluctuation x(t))`` with x an Ornstein-Uhlenbeck process of unit
+        variance (a turbulent nozzle's output wanders over fractions of a second; it is not
+        re-drawn every step). 0 draws x anew at every step (white puffing).
     """
 
     position_m: tuple[float, float, float]
@@ -75,6 +80,7 @@ class GasSource:
     exit_velocity_m_s: tuple[float, float, float] = (0.0, -3.0, 0.0)
     turbulence: float = 0.3
     release_fluctuation: float = 0.3
+    release_correlation_s: float = 0.7
 
 
 @dataclass(frozen=True)
@@ -140,6 +146,8 @@ class FluidParams:
                 raise ValueError(f"source position {s.position_m} is outside the volume {extent}")
             if not s.radius_m > 0 or s.release_rate_g_s < 0:
                 raise ValueError("source radius must be > 0 and release rate >= 0")
+            if s.release_correlation_s < 0:
+                raise ValueError("release_correlation_s must be >= 0")
 
 
 @dataclass
@@ -474,6 +482,11 @@ class FluidSimulation:
             halo = _faces_of(_source_mask(params, s, dilate_m=2 * params.voxel_m))
             self._src.append((s, cells, _faces_of(cells), halo))
         self._jet_dir = [np.zeros(3) for _ in params.sources]
+        # Ornstein-Uhlenbeck state of each source's release, started in its stationary law.
+        self._release_x = [float(self.rng.standard_normal()) for _ in params.sources]
+        #: Gas mass released since the start (spin-up included), kg: the ground truth of
+        #: the release rate over any interval is the difference of two readings.
+        self.released_kg = 0.0
 
     @property
     def wind_m_s(self) -> np.ndarray:
@@ -503,9 +516,22 @@ class FluidSimulation:
                 arr[fm] = jet[comp] + 0.5 * sigma * self.rng.standard_normal(int(fm.sum()))
                 ring = hm & ~fm
                 arr[ring] += 0.5 * sigma * self.rng.standard_normal(int(ring.sum()))
-            factor = max(0.0, 1.0 + src.release_fluctuation * self.rng.standard_normal())
+            factor = max(0.0, 1.0 + src.release_fluctuation * self._release_step(n, src, dt))
             mass_kg = src.release_rate_g_s * 1e-3 * dt * factor
             st.c[cells] += mass_kg / (cells.sum() * h3)
+            self.released_kg += mass_kg
+
+    def _release_step(self, n: int, src: GasSource, dt: float) -> float:
+        """Advance source ``n``'s Ornstein-Uhlenbeck release state by ``dt``; return it.
+
+        Exact discretisation x <- a x + sqrt(1 - a^2) N(0, 1), a = exp(-dt / tau), so the
+        variance stays 1 whatever the step (the spin-up's steps are longer).
+        """
+        tau = src.release_correlation_s
+        a = math.exp(-dt / tau) if tau > 0 else 0.0
+        x = a * self._release_x[n] + math.sqrt(1.0 - a * a) * float(self.rng.standard_normal())
+        self._release_x[n] = x
+        return x
 
     def step(self) -> None:
         """Advance by one time step ``params.dt_s`` (forces, advection, diffusion, projection)."""

@@ -231,8 +231,10 @@ def _march(
     column: np.ndarray,
     zsum: np.ndarray,
     vsum: np.ndarray,
+    vzsum: np.ndarray,
 ) -> None:
-    """Integrate c (and c Z, c V) along every pixel's ray through the volume (midpoint rule).
+    """Integrate c (and c Z, c V, c V Z) along every pixel's ray through the volume
+    (midpoint rule).
 
     ``cam_vol`` is the camera centre in volume coordinates (m); a ray is ``cam_vol + t d``
     with ``d_z = 1``, so t is the depth Z from this camera. Outputs are (H, W) / (H, W, 3).
@@ -261,9 +263,9 @@ def _march(
             column[y, x] = 0.0
             zsum[y, x] = 0.0
             if with_velocity:
-                vsum[y, x, 0] = 0.0
-                vsum[y, x, 1] = 0.0
-                vsum[y, x, 2] = 0.0
+                for a in range(3):
+                    vsum[y, x, a] = 0.0
+                    vzsum[y, x, a] = 0.0
             if t1 <= t0:
                 continue
             norm = math.sqrt(dirs[y, x, 0] ** 2 + dirs[y, x, 1] ** 2 + dirs[y, x, 2] ** 2)
@@ -276,6 +278,9 @@ def _march(
             av0 = 0.0
             av1 = 0.0
             av2 = 0.0
+            az0 = 0.0
+            az1 = 0.0
+            az2 = 0.0
             for m in range(n):
                 t = t0 + (m + 0.5) * dt
                 gx = (cam_vol[0] + t * dirs[y, x, 0]) / h - 0.5
@@ -304,18 +309,27 @@ def _march(
                 acc += cv * dl
                 accz += cv * t * dl
                 if with_velocity:
-                    av0 += cv * dl * _interp8(vel[0], k, j, i, w000, w001, w010, w011,
-                                              w100, w101, w110, w111)
-                    av1 += cv * dl * _interp8(vel[1], k, j, i, w000, w001, w010, w011,
-                                              w100, w101, w110, w111)
-                    av2 += cv * dl * _interp8(vel[2], k, j, i, w000, w001, w010, w011,
-                                              w100, w101, w110, w111)
+                    f0 = cv * dl * _interp8(vel[0], k, j, i, w000, w001, w010, w011,
+                                            w100, w101, w110, w111)
+                    f1 = cv * dl * _interp8(vel[1], k, j, i, w000, w001, w010, w011,
+                                            w100, w101, w110, w111)
+                    f2 = cv * dl * _interp8(vel[2], k, j, i, w000, w001, w010, w011,
+                                            w100, w101, w110, w111)
+                    av0 += f0
+                    av1 += f1
+                    av2 += f2
+                    az0 += f0 * t
+                    az1 += f1 * t
+                    az2 += f2 * t
             column[y, x] = acc
             zsum[y, x] = accz
             if with_velocity:
                 vsum[y, x, 0] = av0
                 vsum[y, x, 1] = av1
                 vsum[y, x, 2] = av2
+                vzsum[y, x, 0] = az0
+                vzsum[y, x, 1] = az1
+                vzsum[y, x, 2] = az2
 
 
 def _check_volume(c: np.ndarray, volume: Volume) -> None:
@@ -330,6 +344,7 @@ def column_integrals(
     camera_x_m: float = 0.0,
     velocity: np.ndarray | None = None,
     step_cells: float = 0.5,
+    moment_out: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Line integrals along the rays of a camera at (camera_x_m, 0, 0) in the left frame.
 
@@ -346,6 +361,10 @@ def column_integrals(
         Cell-centred velocity (X, Y, Z) in m/s.
     step_cells : float
         Marching step in cells (0.5 samples every cell twice).
+    moment_out : (H, W, 3) float64 array, optional
+        Filled (with ``velocity``) with the flux moment ``integral c V Z dl`` in u*m^3/s:
+        the exact flux of c through a curtain of viewing rays is built from it
+        (:func:`processing.emission.truth.true_curtain_flux`).
 
     Returns
     -------
@@ -368,13 +387,17 @@ def column_integrals(
         if velocity.shape != (3, *c.shape):
             raise ValueError(f"velocity must have shape (3, *{c.shape}), got {velocity.shape}")
         vsum = np.empty((hgt, wid, 3))
+        vzsum = np.empty((hgt, wid, 3)) if moment_out is None else moment_out
+        if vzsum.shape != (hgt, wid, 3) or vzsum.dtype != np.float64:
+            raise ValueError(f"moment_out must be float64 {(hgt, wid, 3)}")
     else:
         velocity = np.zeros((3, 2, 2, 2))
         vsum = np.zeros((1, 1, 3))
+        vzsum = np.zeros((1, 1, 3))
     # zsum integrates depth measured from the camera; camera_z = 0 in the left frame.
     _march(
         np.ascontiguousarray(c, dtype=float), velocity, with_v, cam,
-        np.ascontiguousarray(dirs, dtype=float), h, step_cells, column, zsum, vsum,
+        np.ascontiguousarray(dirs, dtype=float), h, step_cells, column, zsum, vsum, vzsum,
     )
     return column, zsum, (vsum if with_v else None)
 
@@ -389,12 +412,20 @@ class GroundTruth:
     position : (H, W, 3) float32, m (NaN where no gas on the ray)
     mask : (H, W) bool, column density >= NECL
     column_density_ppm_m : (H, W) float32
+    flux_moment_kg_s : (H, W, 3) float32 or None
+        ``integral c V Z dl`` along the ray with c in kg/m^3 (so kg/s): with the curtain
+        geometry of :mod:`processing.emission.curtains`, the exact mass flux through a
+        curtain of viewing rays is sum_i (M_i . n) |e_perp,i| / s.
+    release_rate_g_s : float or None
+        Mean release rate of the sources over this frame's interval, g/s.
     """
 
     velocity: np.ndarray
     position: np.ndarray
     mask: np.ndarray
     column_density_ppm_m: np.ndarray
+    flux_moment_kg_s: np.ndarray | None = None
+    release_rate_g_s: float | None = None
 
 
 def ground_truth(

@@ -86,13 +86,20 @@ class SyntheticStereoScene:
         # Velocity that carries this frame's gas to the next frame: mean over the sub-steps
         # (the state's arrays are replaced, not modified, by a step, so c_ppm stays this frame's).
         vel = np.zeros((3, *st.c.shape))
+        released_kg = self.sim.released_kg
         for _ in range(cfg.substeps):
             self.sim.step()
             vel += self.sim.state.cell_velocity()
         vel /= cfg.substeps
-        col_l, zsum, vsum = column_integrals(c_ppm, self.volume, self.dirs, 0.0, velocity=vel)
+        release_g_s = (self.sim.released_kg - released_kg) * 1e3 / cfg.frame_interval_s
+        moment = np.empty((*self.dirs.shape[:2], 3))
+        col_l, zsum, vsum = column_integrals(c_ppm, self.volume, self.dirs, 0.0, velocity=vel,
+                                             moment_out=moment)
         col_r, _, _ = column_integrals(c_ppm, self.volume, self.dirs, self.camera.b_m)
         gt = ground_truth(col_l, zsum, vsum, self.dirs, cfg.necl_ppm_m)
+        # The flux truth in kg/s: the moment was integrated over c in ppm.
+        gt.flux_moment_kg_s = (moment / to_ppm).astype(np.float32)
+        gt.release_rate_g_s = float(release_g_s)
         gas = GasFrame(index=self.frame_index, t_s=t_s, column_left=col_l, column_right=col_r,
                        truth=gt)
         self.frame_index += 1

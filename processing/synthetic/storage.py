@@ -46,7 +46,17 @@ column_density_ppm_m     float32      integral of the concentration along the ra
                          (H,W)
 jitter_left_px,          float64 (2,) (dx, dy) shift applied to that camera's image
 jitter_right_px                       (zeros unless the jitter option is on)
+gt_flux_moment_kg_s      float32      optional: integral of c V Z dl along the left ray,
+                         (H,W,3)      c in kg/m^3 (so kg/s); 0 where no gas. The exact
+                                      mass flux through a curtain of viewing rays is
+                                      sum_i (M_i . n) |e_perp,i| / s
+                                      (:mod:`processing.emission.truth`)
+gt_release_rate_g_s      float64 ()   optional: mean release rate of the source(s) between
+                                      this frame and the next, g/s
 =======================  ===========  ====================================================
+
+The two optional keys exist in sequences written since the emission-rate ground truth
+(issue 13); readers treat their absence as "no truth" (None).
 
 Ground-truth timing: ``gt_velocity`` of frame ``i`` is the velocity that carries the gas of
 frame ``i`` to frame ``i + 1`` (the fluid velocity averaged over the simulation steps between
@@ -100,10 +110,17 @@ class SyntheticFrame:
     column_density_ppm_m: np.ndarray
     jitter_left_px: np.ndarray
     jitter_right_px: np.ndarray
+    flux_moment_kg_s: np.ndarray | None = None
+    release_rate_g_s: float | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The npz payload of this frame."""
-        return {
+        extra: dict[str, np.ndarray] = {}
+        if self.flux_moment_kg_s is not None:
+            extra["gt_flux_moment_kg_s"] = np.asarray(self.flux_moment_kg_s, np.float32)
+        if self.release_rate_g_s is not None:
+            extra["gt_release_rate_g_s"] = np.float64(self.release_rate_g_s)
+        return extra | {
             "left": self.left,
             "right": self.right,
             "t_s": np.float64(self.t_s),
@@ -271,6 +288,10 @@ def read_frame(
     if data["t_s"].shape != ():
         raise SequenceFormatError(f"{path}: t_s must be a scalar")
     zero = np.zeros(2)
+    moment = data.get("gt_flux_moment_kg_s")
+    if moment is not None:
+        _expect(moment, "gt_flux_moment_kg_s", np.float32, (h, w, 3), path)
+    release = data.get("gt_release_rate_g_s")
     return SyntheticFrame(
         index=index,
         t_s=float(data["t_s"]),
@@ -282,6 +303,8 @@ def read_frame(
         column_density_ppm_m=data["column_density_ppm_m"],
         jitter_left_px=data.get("jitter_left_px", zero),
         jitter_right_px=data.get("jitter_right_px", zero),
+        flux_moment_kg_s=moment,
+        release_rate_g_s=None if release is None else float(release),
     )
 
 
