@@ -89,15 +89,19 @@ class DiffScaleTracker:
         """Current scale in radiance units (use it for both cameras)."""
         return self._scale
 
-    def update(self, *diffs: np.ndarray) -> float:
-        """Pool the raw differential images of both cameras and update the scale."""
+    def target(self, *diffs: np.ndarray) -> float:
+        """The scale these raw differential images alone would ask for (radiance units)."""
         if not diffs:
             raise ValueError("update needs at least one differential image")
         # Every 2nd pixel in each direction is plenty for a quantile and 4x cheaper.
         pooled = np.concatenate(
             [np.abs(as_float_image(d, "diff")[::2, ::2]).ravel() for d in diffs]
         )
-        target = self.headroom * float(np.quantile(pooled, self.quantile))
+        return self.headroom * float(np.quantile(pooled, self.quantile))
+
+    def update(self, *diffs: np.ndarray) -> float:
+        """Pool the raw differential images of both cameras and update the scale."""
+        target = self.target(*diffs)
         if target > 0.0:
             self._scale = (1.0 - self.forgetting) * self._scale + self.forgetting * target
         return self._scale

@@ -182,3 +182,22 @@ def test_two_workers_sharing_shifts_give_identical_results_with_half_the_estimat
             np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
     assert sum(s.shifts_reused for s in together) == 2 * 5  # one per camera, triples 1-5
     assert sum(s.shifts_reused for s in apart) == 0
+
+
+def test_a_scene_change_starts_cold_and_is_not_carried_into_the_next_triples() -> None:
+    """A jump of the whole picture (flat-field shutter, bumped camera, the simulated scene's
+    loop): the triple is flagged ``scene_change`` and solved cold, and the triple after it
+    starts cold as well; then warm starts resume."""
+    left, right, times = _sequence(9)
+    for frames in (left, right):  # frame 4: an offset jump of both cameras (a shutter)
+        frames[4] = frames[4] + np.uint16(30000)
+    seq = (left, right, times)
+    state = ChainState()
+    results = [compute_scene_flow(*_triple(seq, k), GEOMETRY, PARAMS, state) for k in range(7)]
+    cut = ["scene_change" in r.summary.flags for r in results]
+    assert cut[2] or cut[3] or cut[4]  # a triple containing frame 4
+    assert not any(cut[:2]) and not any(cut[5:])
+    first = cut.index(True)
+    assert not results[first].warm and not results[first + 1].warm
+    assert results[-1].warm
+    assert (state.warm_starts + state.cold_starts) == 7
