@@ -474,6 +474,9 @@ class FluidSimulation:
             halo = _faces_of(_source_mask(params, s, dilate_m=2 * params.voxel_m))
             self._src.append((s, cells, _faces_of(cells), halo))
         self._jet_dir = [np.zeros(3) for _ in params.sources]
+        #: False while a scheduled release is off (processing.synthetic.schedule): the
+        #: sources then release no gas and force no jet; gas already out drifts on.
+        self.release_on = True
 
     @property
     def wind_m_s(self) -> np.ndarray:
@@ -490,6 +493,8 @@ class FluidSimulation:
         self._wind = wind
 
     def _apply_sources(self, dt: float) -> None:
+        if not self.release_on:
+            return
         st, p = self.state, self.params
         h3 = p.voxel_m**3
         for n, (src, cells, faces, halo) in enumerate(self._src):

@@ -14,6 +14,8 @@ deg; sigma 1.18 (1.38), 1.15 (0.97), 0.89 (1.25) m/s; N 6006 (8088), 6908 (7491)
 px.
 ``field`` imitates the appliance's cameras: 30 Hz frames (simulation sub-steps inside), a plume
 about 5.5 m away on 3 cm voxels, a configurable baseline and the anemometer's wind.
+``no_release`` is the same site with no gas but noise, jitter, a walking warm object and a
+drifting background (false-alarm measurements).
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from processing.synthetic.config import SequenceConfig
+from processing.synthetic.config import RenderOptions, SequenceConfig
 from processing.synthetic.fluid import FluidParams, GasSource
+from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.render import StereoCamera
 
 #: The presets that ``ogiflow simulate`` writes by default.
@@ -125,11 +128,57 @@ def preset_field(
     return replace(cfg, **overrides) if overrides else cfg
 
 
+#: Largest rate of the no-release scene's background drift, K/s (a sunlit wall warming
+#: 1.2 K a minute), whatever the drift's period.
+NO_RELEASE_DRIFT_K_PER_S = 0.02
+#: Temporal noise (NETD, K) and jitter (px, standard deviation) of the no-release scene.
+NO_RELEASE_NOISE_K = 0.03
+NO_RELEASE_JITTER_PX = 0.3
+
+
+def preset_no_release(
+    n_frames: int = 90,
+    wind_m_s: tuple[float, float, float] = (1.5, 0.0, 0.0),
+    b_m: float = 0.3,
+    distance_m: float = 5.5,
+    seed: int = 7,
+    voxel_m: float = 0.03,
+    walker_period_s: float = 20.0,
+    drift_period_s: float = 600.0,
+    **overrides: Any,
+) -> SequenceConfig:
+    """The field scene with no gas and what a site shows instead: the false-alarm scene.
+
+    The ``field`` cameras in front of a plant wall (textured, 12 m), with temporal noise
+    (NETD 0.03 K), camera jitter (0.3 px), a warm object (a person, 0.3 m, 310 K) walking
+    3 m to and fro at ``distance_m`` every ``walker_period_s``, and the background's
+    temperature drifting as a sine of ``drift_period_s`` whose steepest slope is
+    :data:`NO_RELEASE_DRIFT_K_PER_S`. No source: the fluid is not simulated (nothing moves
+    in it), so frames cost only their rendering. Loop such a scene over a multiple of both
+    periods and it has no jump.
+    """
+    cfg = preset_field(n_frames=n_frames, wind_m_s=wind_m_s, b_m=b_m, distance_m=distance_m,
+                       seed=seed, voxel_m=voxel_m)
+    span_m = 3.0
+    walker = MovingObject(z_m=distance_m, radius_m=0.3, center_m=(b_m / 2 - span_m / 2, 0.2),
+                          velocity_m_s=(2.0 * span_m / walker_period_s, 0.0), t_k=310.0,
+                          back_forth_s=walker_period_s)
+    drift_k = NO_RELEASE_DRIFT_K_PER_S * drift_period_s / (2.0 * np.pi)
+    cfg = replace(
+        cfg, name="no_release", fluid=replace(cfg.fluid, sources=()), spinup_steps=0,
+        background=Background(kind="plant", seed=seed, drift_k=drift_k,
+                              drift_period_s=drift_period_s),
+        options=RenderOptions(noise_netd_k=NO_RELEASE_NOISE_K, jitter_px=NO_RELEASE_JITTER_PX,
+                              moving_object=walker))
+    return replace(cfg, **overrides) if overrides else cfg
+
+
 PRESETS: dict[str, Callable[..., SequenceConfig]] = {
     "table2_1": preset_table2_1,
     "table2_2": preset_table2_2,
     "table2_3": preset_table2_3,
     "field": preset_field,
+    "no_release": preset_no_release,
 }
 
 
