@@ -11,6 +11,14 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
 - *a fixed source*: the upstream end of the plume stays within ``max_source_shift_px`` of
   the running median over the event's frames, or gas still covers that median (a moving
   object drags its "source" along and leaves the place where it was first seen);
+- *gas that stays at the source*: to start, the place of the candidate's source must have
+  held gas in at least :data:`PERSISTENCE` of the frames of the last ``min_duration_s``
+  (a leak keeps feeding it; a warm object covers any place only while it passes, its
+  uniform middle not even then);
+- *a source in view*: before an event has started, a frame whose upstream end lies on the
+  image border (within :data:`BORDER_PX`) counts only when its gas covers the candidate's
+  source: gas entering across the edge cannot be located, and a warm object walking slowly
+  into the view keeps its trailing end pinned to the border for seconds;
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
   ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
   it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
@@ -113,6 +121,8 @@ class FrameEvidence:
         3D position of the source, m (camera frame).
     resultant : (float, float) or None
         Mean unit flow direction of the gas pixels (length = coherence).
+    on_border : bool
+        The source lies within :data:`BORDER_PX` of the image's edge.
     coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
         Which cells of the image hold gas (to ask whether a source is still under gas).
     """
@@ -127,6 +137,7 @@ class FrameEvidence:
     wind_m_s: tuple[float, float, float] | None = None
     source_xyz_m: tuple[float, float, float] | None = None
     resultant: tuple[float, float] | None = None
+    on_border: bool = False
     coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def covers(self, xy: tuple[float, float]) -> bool:
@@ -150,6 +161,14 @@ ANCHOR_FRAMES = 5
 
 #: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
 COVERAGE_CELL_PX = 8
+
+#: A source this close to the image's edge is where gas enters the view, px (start rule;
+#: two coverage cells: the upstream end is a mean over the most upstream gas pixels).
+BORDER_PX = 16
+
+#: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
+#: source (one coverage cell around it) held gas, for the event to start.
+PERSISTENCE = 0.8
 
 
 def _coverage(mask: np.ndarray) -> np.ndarray:
@@ -189,9 +208,12 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
     along = xs * d[0] + ys * d[1]
     up = along <= np.percentile(along, 2.0)
     source = (float(xs[up].mean()), float(ys[up].mean()))
+    h, w = mask.shape
+    on_border = bool(min(source[0], source[1], w - 1 - source[0], h - 1 - source[1])
+                     < BORDER_PX)
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
                          resultant=(float(resultant[0]), float(resultant[1])),
-                         coverage=_coverage(mask), **extra)
+                         on_border=on_border, coverage=_coverage(mask), **extra)
 
 
 class EvidenceStream:
@@ -326,6 +348,9 @@ class LeakDetector:
         # Gas of the candidate's first positive frames (``_same_source``), kept while the
         # event lasts.
         self._anchor_coverage: np.ndarray | None = None
+        # Gas of every frame of the last min_duration_s while no event is on (_persistent).
+        self._coverages: collections.deque[tuple[float, np.ndarray | None]] = (
+            collections.deque())
 
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
@@ -337,6 +362,9 @@ class LeakDetector:
         ref = (self.current.source_xy if self.current is not None
                else (_median_point(self._candidate_sources) if self._candidate_sources
                      else None))
+        if self.current is None and ev.on_border:
+            # only the jumping end of a plume whose source is known and under this gas
+            return ref is not None and ev.covers(ref)
         return ref is None or self._same_source(ev, ref)
 
     def _same_source(self, ev: FrameEvidence, ref: tuple[float, float]) -> bool:
@@ -372,6 +400,20 @@ class LeakDetector:
         return self._same_source(
             ev, _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
 
+    def _persistent(self, now: float) -> bool:
+        """Whether the place of the candidate's source (median, one coverage cell around
+        it) held gas in at least :data:`PERSISTENCE` of the frames of the last
+        ``min_duration_s`` (module docstring)."""
+        if not self._candidate_sources:
+            return True
+        ref = _median_point(self._candidate_sources)
+        spans = [cov for t, cov in self._coverages
+                 if t >= now - self.cfg.min_duration_s and cov is not None]
+        if not spans:
+            return True  # evidence without gas maps (tests of the other rules)
+        held = sum(covers(cov, ref) for cov in spans)
+        return held >= PERSISTENCE * len(spans)
+
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
         c = self.cfg
@@ -385,11 +427,16 @@ class LeakDetector:
         horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
         while self._recent and self._recent[0][0] < ev.t_s - horizon:
             self._recent.popleft()
+        if self.current is None:
+            self._coverages.append((ev.t_s, ev.coverage))
+            while self._coverages and self._coverages[0][0] < ev.t_s - c.min_duration_s - 1.0:
+                self._coverages.popleft()
         out: list[tuple[str, LeakEvent]] = []
         if self.current is None:
             frac, first = self._fraction(ev.t_s, c.start_window_s)
             if (first is not None and frac >= c.start_fraction
-                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)):
+                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)
+                    and self._persistent(ev.t_s)):
                 start_frame = next(f for t, f, p in self._recent if t == first and p)
                 self.current = LeakEvent(next(self._ids), first, start_frame)
                 self.current.add(ev, pos)

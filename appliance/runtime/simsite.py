@@ -22,6 +22,7 @@ import os
 import sys
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from appliance.config import CameraConfig, Config, SimulationConfig
 from appliance.progress import ProgressBar
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
+from processing.synthetic.schedule import ReleaseSchedule
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
 SCENE_VERSION = 1
@@ -52,6 +54,11 @@ def cache_root(configured: Path | None) -> Path:
 def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> str:
     """Stable short hash of everything that shapes the rendered scene."""
     params = {k: v for k, v in asdict(sim).items() if k != "cache_dir"}
+    # keys added later stay out of the hash at their defaults: cached scenes stay valid
+    if params.get("scene") == "leak":
+        del params["scene"]
+    if not params.get("release_schedule"):
+        params.pop("release_schedule", None)
     params["wind_m_s"] = [round(float(w), 3) for w in wind_camera_m_s]
     params["version"] = SCENE_VERSION
     text = json.dumps(params, sort_keys=True)
@@ -72,21 +79,13 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
         Do not draw the progress bar on stderr.
     """
     from processing.synthetic import write_sequence
-    from processing.synthetic.sequences import generate_sequence, preset_field
+    from processing.synthetic.sequences import generate_sequence
 
     root = cache_root(sim.cache_dir)
     folder = root / f"field-{scene_key(sim, wind_camera_m_s)}"
     if (folder / "meta.json").is_file():
         return folder
-    config = preset_field(
-        n_frames=sim.frames,
-        wind_m_s=tuple(float(w) for w in wind_camera_m_s),
-        b_m=sim.baseline_m,
-        distance_m=sim.distance_m,
-        release_rate_g_s=sim.release_rate_g_s,
-        seed=sim.seed,
-        voxel_m=sim.voxel_m,
-    )
+    config = scene_config(sim, wind_camera_m_s)
     if not quiet:
         sys.stderr.write(f"ogiflow: rendering the simulated gas scene once into {folder} "
                          "(cached for later runs)\n")
@@ -94,6 +93,36 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     progress = None if quiet else ProgressBar("rendering simulated scene", unit="frames")
     write_sequence(folder, config.meta(), generate_sequence(config, progress))
     return folder
+
+
+def scene_config(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Any:
+    """The synthetic sequence (``SequenceConfig``) of the configured scene.
+
+    ``leak``: the ``field`` preset, its release switched by ``release_schedule`` whose period
+    is the loop. ``no_release``: the ``no_release`` preset with the walker's to-and-fro and
+    the background drift both lasting one loop, so the looped scene has no jump (the drift's
+    steepest slope stays that of the preset).
+    """
+    from dataclasses import replace
+
+    from processing.synthetic.presets import (
+        FIELD_FRAME_RATE_HZ,
+        preset_field,
+        preset_no_release,
+    )
+    from processing.synthetic.schedule import ReleaseSchedule
+
+    common = {"n_frames": sim.frames, "wind_m_s": tuple(float(w) for w in wind_camera_m_s),
+              "b_m": sim.baseline_m, "distance_m": sim.distance_m, "seed": sim.seed,
+              "voxel_m": sim.voxel_m}
+    loop_s = sim.frames / FIELD_FRAME_RATE_HZ
+    if sim.scene == "no_release":
+        return preset_no_release(walker_period_s=loop_s, drift_period_s=loop_s, **common)
+    config = preset_field(release_rate_g_s=sim.release_rate_g_s, **common)
+    if sim.release_schedule:
+        config = replace(config, release_schedule=ReleaseSchedule.from_lists(
+            sim.release_schedule, loop_s))
+    return config
 
 
 class SceneTruth:
@@ -111,12 +140,22 @@ class SceneTruth:
         self.n_frames = int(meta["n_frames"])
         self.camera = dict(meta["camera"])
         self.wind_m_s = tuple(float(w) for w in meta.get("wind_m_s", (0.0, 0.0, 0.0)))
+        self.frame_interval_s = float(meta["frame_interval_s"])
+        self.schedule = ReleaseSchedule.from_json(meta.get("release_schedule"))
+        self._rate_g_s = float(meta.get("release_rate_g_s", 0.0))
         frames = [read_frame(folder, i, meta) for i in range(self.n_frames)]
         self._means: list[np.ndarray | None] = []
         for i in range(self.n_frames - 1):
             v, mask = triplet_reference(frames[i], frames[i + 1])
             self._means.append(v[mask].astype(np.float64).mean(axis=0) if mask.any() else None)
         self._means.append(None)  # frame n-1 starts a triple that wraps
+
+    def release_rate_g_s(self, k: int) -> float:
+        """True mean release rate at scene frame ``k`` (looped), g/s: 0 while a scheduled
+        release is off (gas released before may still be in view)."""
+        t = (int(k) % self.n_frames) * self.frame_interval_s
+        return self._rate_g_s * (1.0 if self.schedule is None else
+                                 self.schedule.rate_factor(t))
 
     def mean_velocity(self, k0: int) -> np.ndarray | None:
         i = int(k0) % self.n_frames
@@ -170,13 +209,14 @@ class SimulatedSite:
     def chain_defaults(self, camera_constant_px: float, baseline_m: float) -> dict[str, object]:
         """Chain parameters the rendered scene needs (the config may override them).
 
-        The synthetic scene has no jitter and a featureless background (the paper's ideal
+        The leak scene has no jitter and a featureless background (the paper's ideal
         conditions): registration could only lock onto the gas. The minimum disparity d0 is
         that of twice the plume distance.
         """
         if self.folder is None:
             return {}
-        return {"register": False,
+        # the no-release scene's plant wall is textured and jittered: register on it
+        return {"register": self.cfg.simulation.scene == "no_release",
                 "d0": camera_constant_px * baseline_m / (2.0 * self.cfg.simulation.distance_m)}
 
     def camera_options(self, side: str, cam: CameraConfig) -> dict[str, object]:

@@ -35,6 +35,8 @@ from processing.synthetic.render import StereoCamera
 TABLE2_PRESETS: tuple[str, ...] = ("table2_1", "table2_2", "table2_3")
 
 _TABLE2_EXTENT_M = 0.4  # 100 voxels of 4 mm
+#: Frame rate of the ``field`` and ``no_release`` scenes (the appliance's cameras), Hz.
+FIELD_FRAME_RATE_HZ = 30.0
 
 
 def _table2(
@@ -119,7 +121,7 @@ def preset_field(
                     turbulence=0.5, release_fluctuation=0.4)
     # two steps per frame keep the CFL number near 1 at 3 cm and 3 m/s (semi-Lagrangian is
     # stable beyond, only more diffusive)
-    fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=1.0 / 60.0,
+    fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=0.5 / FIELD_FRAME_RATE_HZ,
                         wind_m_s=tuple(float(v) for v in w), boundary="open",
                         viscosity_m2_s=0.0, diffusivity_m2_s=0.0, sources=(src,))
     cfg = SequenceConfig(name="field", fluid=fluid, volume_origin_m=origin,
