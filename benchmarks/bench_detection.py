@@ -27,6 +27,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,22 @@ from processing.synthetic.presets import (  # noqa: E402
 from processing.synthetic.schedule import ReleaseSchedule  # noqa: E402
 
 
+def _progress(frames: Iterator[Any], step_s: float) -> Iterator[Any]:
+    """Pass frames through, printing the scene time every ``step_s`` (partial results of a
+    long run stay readable in its log)."""
+    next_s = step_s
+    for f in frames:
+        if f.t_s >= next_s:
+            print(f"scene time {f.t_s:.0f} s", flush=True)
+            next_s += step_s
+        yield f
+
+
+def _print_event(kind: str, event: Any) -> None:
+    print(f"event {event.id} {kind}: frame {event.start_frame} t {event.start_t_s:.1f} s, "
+          f"source {event.source_xy}", flush=True)
+
+
 def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, voxel_m: float,
                  every: int, seed: int) -> dict[str, Any]:
     """The scheduled leak for ``cycles`` periods; per-release delays and false events."""
@@ -58,7 +75,8 @@ def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, vox
                                voxel_m=voxel_m, seed=seed), release_schedule=schedule)
     settings = DetectionSettings()
     t0 = time.perf_counter()
-    report = detect_frames(simulated_frames(cfg, every), cfg.meta(), settings, every)
+    report = detect_frames(_progress(simulated_frames(cfg, every), 5.0), cfg.meta(), settings,
+                           every, on_event=_print_event)
     # gas released last drifts through the view for a few seconds: allow the end window
     score = score_releases(report, schedule.releases(duration), settings.events.end_window_s)
     report.pop("per_frame")
@@ -75,7 +93,8 @@ def run_no_release(minutes: float, walker_s: float, drift_s: float, every: int, 
     cfg = preset_no_release(n_frames=n, walker_period_s=walker_s, drift_period_s=drift_s,
                             seed=seed)
     t0 = time.perf_counter()
-    report = detect_frames(simulated_frames(cfg, every), cfg.meta(), DetectionSettings(), every)
+    report = detect_frames(_progress(simulated_frames(cfg, every), 60.0), cfg.meta(),
+                           DetectionSettings(), every, on_event=_print_event)
     per_frame = report.pop("per_frame")
     return {"scene": "no_release", "minutes": minutes, "walker_period_s": walker_s,
             "drift_period_s": drift_s, "every": every, "seed": seed,

@@ -15,7 +15,7 @@ sees separate runs as separate stretches of time.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,10 +78,13 @@ def _positives(evidence: list[FrameEvidence], events: EventConfig) -> list[bool]
     return out
 
 
-def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, int]]) -> None:
+def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, int]],
+          on_event: Callable[[str, Any], None] | None = None) -> None:
     for kind, event in det.update(ev):
         if kind == "start":
             alarms[event.id] = (ev.t_s, ev.frame)
+        if on_event is not None and kind != "update":
+            on_event(kind, event)
 
 
 def detect_folder(name: str, frames: list[tuple[int, Path]], settings: DetectionSettings
@@ -110,7 +113,8 @@ def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]
 
 
 def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: DetectionSettings,
-                  every: int = 1) -> dict[str, Any]:
+                  every: int = 1, on_event: Callable[[str, Any], None] | None = None
+                  ) -> dict[str, Any]:
     """Events in a stream of synthetic stereo frames (``SyntheticFrame``), whole chain.
 
     Parameters
@@ -122,6 +126,8 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
     every : int
         Process the triple starting at every ``every``-th frame only, as a daemon that
         keeps up at ``frame rate / every`` does (the event logic's windows are in seconds).
+    on_event : callable, optional
+        ``(kind, LeakEvent)`` at every start and end, as it happens (long runs).
     """
     from processing.chain import ChainState, StereoGeometry, compute_scene_flow
 
@@ -145,7 +151,7 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
                                  [f.t_s for f in window], geometry, params, state)
         ev = stream(window[0].t_s, window[0].index, res.gas_mask, res.flow)
         evidence.append(ev)
-        _feed(det, ev, alarms)
+        _feed(det, ev, alarms, on_event)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
     return _report(n, evidence, det, settings.events, alarms)
