@@ -15,7 +15,7 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
   held gas in at least :data:`PERSISTENCE` of the frames of the last ``min_duration_s``
   (a leak keeps feeding it; a warm object covers any place only while it passes, its
   uniform middle not even then);
-- *a source in view*: before an event has started, a frame whose upstream end lies on the
+- *a source in view*: before an event has started, a frame whose upstream end touches the
   image border (within :data:`BORDER_PX`) counts only when its gas covers the candidate's
   source: gas entering across the edge cannot be located, and a warm object walking slowly
   into the view keeps its trailing end pinned to the border for seconds;
@@ -122,7 +122,8 @@ class FrameEvidence:
     resultant : (float, float) or None
         Mean unit flow direction of the gas pixels (length = coherence).
     on_border : bool
-        The source lies within :data:`BORDER_PX` of the image's edge.
+        Some of the most upstream gas pixels lie within :data:`BORDER_PX` of the image's
+        edge (the gas enters the view there).
     coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
         Which cells of the image hold gas (to ask whether a source is still under gas).
     """
@@ -162,9 +163,9 @@ ANCHOR_FRAMES = 5
 #: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
 COVERAGE_CELL_PX = 8
 
-#: A source this close to the image's edge is where gas enters the view, px (start rule;
-#: two coverage cells: the upstream end is a mean over the most upstream gas pixels).
-BORDER_PX = 16
+#: Gas this close to the image's edge among a frame's most upstream pixels means it enters
+#: the view there, px (start rule).
+BORDER_PX = 8
 
 #: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
 #: source (one coverage cell around it) held gas, for the event to start.
@@ -209,8 +210,10 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
     up = along <= np.percentile(along, 2.0)
     source = (float(xs[up].mean()), float(ys[up].mean()))
     h, w = mask.shape
-    on_border = bool(min(source[0], source[1], w - 1 - source[0], h - 1 - source[1])
-                     < BORDER_PX)
+    # any of the most upstream pixels at the edge, not their mean: a warm object walking
+    # into the view has its upstream end on the edge, its mean 15-20 px inside
+    ux, uy = xs[up], ys[up]
+    on_border = bool(min(ux.min(), uy.min(), w - 1 - ux.max(), h - 1 - uy.max()) < BORDER_PX)
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
                          resultant=(float(resultant[0]), float(resultant[1])),
                          on_border=on_border, coverage=_coverage(mask), **extra)
