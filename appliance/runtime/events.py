@@ -11,7 +11,7 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
 - *a fixed source*: the upstream end of the plume stays within ``max_source_shift_px`` of
   the running median over the event's frames, or gas still covers that median (a moving
   object drags its "source" along and leaves the place where it was first seen);
-- *gas that stays at the source*: to start, the place of the candidate's source must have
+- *gas that stays at the source*: to start, the place of the candidate's first sources must have
   held gas in at least :data:`PERSISTENCE` of the frames of the last ``min_duration_s``
   (a leak keeps feeding it; a warm object covers any place only while it passes, its
   uniform middle not even then);
@@ -404,12 +404,13 @@ class LeakDetector:
             ev, _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
 
     def _persistent(self, now: float) -> bool:
-        """Whether the place of the candidate's source (median, one coverage cell around
-        it) held gas in at least :data:`PERSISTENCE` of the frames of the last
+        """Whether the place of the candidate's first sources (their median, one coverage
+        cell around it) held gas in at least :data:`PERSISTENCE` of the frames of the last
         ``min_duration_s`` (module docstring)."""
         if not self._candidate_sources:
             return True
-        ref = _median_point(self._candidate_sources)
+        # where the candidate was first seen: a running median would follow a moving object
+        ref = _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES])
         spans = [cov for t, cov in self._coverages
                  if t >= now - self.cfg.min_duration_s and cov is not None]
         if not spans:
