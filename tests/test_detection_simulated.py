@@ -6,6 +6,7 @@ every release of a schedule and the false events of 30 min of no-release scene).
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -98,3 +99,27 @@ def test_config_release_schedule_and_scene() -> None:
             _load(bad)
     with pytest.raises(ConfigError, match="only the leak scene"):
         _load("simulation.scene=no_release", "simulation.release_schedule=[[1, 2]]")
+
+
+def test_first_start_shows_a_preview_while_the_scene_renders_in_background(tmp_path) -> None:
+    """Cold cache: the site loops the quick preview (coarser grid, its own exact truth) and
+    renders the configured scene in a background process that ``close`` stops; a schedule
+    gets no preview (it needs its whole loop)."""
+    from appliance.runtime.simsite import PREVIEW_VOXEL_M, SimulatedSite, preview_of
+
+    cfg = _load("simulation.frames=30", "simulation.voxel_m=0.06",
+                f"simulation.cache_dir={tmp_path}")
+    site = SimulatedSite(cfg, np.eye(3))
+    try:
+        site.prepare()
+        assert site.background is not None
+        assert site.truth is not None and site.truth.n_frames == 30
+        meta = json.loads((site.folder / "meta.json").read_text())
+        assert meta["simulation"]["voxel_m"] == pytest.approx(PREVIEW_VOXEL_M)
+    finally:
+        proc = site.background
+        site.close()
+    assert proc is not None and proc.poll() is not None and site.background is None
+    scheduled = _load("simulation.frames=300", "simulation.release_schedule=[[1, 4]]")
+    assert preview_of(scheduled.simulation) is None
+    assert preview_of(_load("simulation.scene=no_release").simulation) is None

@@ -159,6 +159,8 @@ class Appliance:
         self._prepare()
         with contextlib.ExitStack() as stack:
             stack.callback(self._restore_signals)
+            if self.site is not None:
+                stack.callback(self.site.close)  # a background scene render
             self._start_recording(stack)
             self._start_live(stack)
             self.monitor = self._make_monitor(stack)

@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import subprocess
 import sys
 from dataclasses import asdict
 from pathlib import Path
@@ -31,6 +33,8 @@ from appliance.progress import ProgressBar
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 from processing.synthetic.schedule import ReleaseSchedule
+
+log = logging.getLogger("ogiflow.simsite")
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
 SCENE_VERSION = 1
@@ -65,6 +69,44 @@ def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+#: Voxel of the quick first scene shown while the configured one renders (first start), m.
+PREVIEW_VOXEL_M = 0.1
+#: Frames of the quick first scene's loop (3 s at 30 Hz).
+PREVIEW_FRAMES = 90
+
+
+def scene_folder(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Path:
+    """Cache folder of the scene for these parameters (rendered or not)."""
+    return cache_root(sim.cache_dir) / f"field-{scene_key(sim, wind_camera_m_s)}"
+
+
+def preview_of(sim: SimulationConfig) -> SimulationConfig | None:
+    """The quick first scene of ``sim``: the same leak on a coarser grid and a shorter loop
+    (about 10x less rendering), or None when there is none to gain or it would not be the
+    same experiment (a release schedule needs its whole loop; the no-release scene renders
+    quickly anyway)."""
+    from dataclasses import replace
+
+    if sim.scene != "leak" or sim.release_schedule:
+        return None
+    if sim.voxel_m >= PREVIEW_VOXEL_M and sim.frames <= PREVIEW_FRAMES:
+        return None
+    return replace(sim, voxel_m=max(sim.voxel_m, PREVIEW_VOXEL_M),
+                   frames=min(sim.frames, PREVIEW_FRAMES))
+
+
+def render_in_background(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
+                         ) -> subprocess.Popen[bytes]:
+    """Render (and cache) the scene in a separate, lowest-priority process: the running
+    appliance keeps its CPU, the next start finds the scene in the cache."""
+    args = {"sim": {k: (None if v is None else str(v) if isinstance(v, Path) else v)
+                    for k, v in asdict(sim).items()},
+            "wind": list(wind_camera_m_s)}
+    return subprocess.Popen(
+        [sys.executable, "-m", "appliance.runtime.simsite", json.dumps(args)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float],
                  *, quiet: bool = False) -> Path:
     """Return the folder of the scene for these parameters, rendering it if not cached.
@@ -82,7 +124,7 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     from processing.synthetic.sequences import generate_sequence
 
     root = cache_root(sim.cache_dir)
-    folder = root / f"field-{scene_key(sim, wind_camera_m_s)}"
+    folder = scene_folder(sim, wind_camera_m_s)
     if (folder / "meta.json").is_file():
         return folder
     config = scene_config(sim, wind_camera_m_s)
@@ -185,6 +227,7 @@ class SimulatedSite:
         self.wind_camera_m_s = self._scene_wind(rotation)
         self.folder: Path | None = None
         self.truth: SceneTruth | None = None
+        self.background: subprocess.Popen[bytes] | None = None
 
     @staticmethod
     def renders_scene(cfg: Config) -> bool:
@@ -201,10 +244,38 @@ class SimulatedSite:
         return (float(v[0]), float(v[1]), float(v[2]))
 
     def prepare(self) -> None:
-        """Render (once; cached) the scene and load its ground truth, when needed."""
-        if self.renders_scene(self.cfg):
-            self.folder = ensure_scene(self.cfg.simulation, self.wind_camera_m_s)
-            self.truth = SceneTruth(self.folder)
+        """Render (once; cached) the scene and load its ground truth, when needed.
+
+        On the first start (nothing cached) a leak scene without a schedule is first
+        rendered as its quick preview (:func:`preview_of`, about 10x less work) and shown
+        for this run, with the preview's own exact ground truth, while the configured
+        scene renders in a background process for the next start.
+        """
+        if not self.renders_scene(self.cfg):
+            return
+        sim = self.cfg.simulation
+        preview = preview_of(sim)
+        if (preview is not None
+                and not (scene_folder(sim, self.wind_camera_m_s) / "meta.json").is_file()):
+            log.warning("first start: showing a coarser %d-frame preview of the simulated "
+                        "scene (%.2f m voxels) while the configured one renders in the "
+                        "background for the next start", preview.frames, preview.voxel_m)
+            self.folder = ensure_scene(preview, self.wind_camera_m_s)
+            self.background = render_in_background(sim, self.wind_camera_m_s)
+        else:
+            self.folder = ensure_scene(sim, self.wind_camera_m_s)
+        self.truth = SceneTruth(self.folder)
+
+    def close(self) -> None:
+        """Stop a background render still running (the next start renders again)."""
+        if self.background is not None and self.background.poll() is None:
+            self.background.terminate()
+            try:
+                self.background.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.background.kill()
+                self.background.wait()
+        self.background = None
 
     def chain_defaults(self, camera_constant_px: float, baseline_m: float) -> dict[str, object]:
         """Chain parameters the rendered scene needs (the config may override them).
@@ -252,3 +323,12 @@ class SimulatedSite:
         if frame_id2 - frame_id0 != 2:
             return None
         return self.truth.mean_velocity(frame_id0)
+
+
+if __name__ == "__main__":  # render_in_background's child process
+    os.nice(19)
+    _args = json.loads(sys.argv[1])
+    _sim = dict(_args["sim"])
+    if _sim.get("cache_dir") is not None:
+        _sim["cache_dir"] = Path(_sim["cache_dir"])
+    ensure_scene(SimulationConfig(**_sim), tuple(_args["wind"]), quiet=True)
