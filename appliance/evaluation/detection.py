@@ -23,7 +23,13 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.footage import FootageSettings, find_sets, iter_mono_triples
-from appliance.runtime.events import EventConfig, EvidenceStream, FrameEvidence, LeakDetector
+from appliance.runtime.events import (
+    EventConfig,
+    EvidenceStream,
+    FrameEvidence,
+    LeakDetector,
+    zone_mask,
+)
 
 
 @dataclass(frozen=True)
@@ -78,6 +84,13 @@ def _positives(evidence: list[FrameEvidence], events: EventConfig) -> list[bool]
     return out
 
 
+def _zones(shape: tuple[int, int], events: EventConfig) -> np.ndarray | None:
+    """The watched pixels of the config's zones, as the daemon's monitor builds them."""
+    if not events.watch_zones and not events.ignore_zones:
+        return None
+    return zone_mask(shape, events.watch_zones, events.ignore_zones)
+
+
 def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, int]],
           on_event: Callable[[str, Any], None] | None = None) -> None:
     for kind, event in det.update(ev):
@@ -91,10 +104,11 @@ def detect_folder(name: str, frames: list[tuple[int, Path]], settings: Detection
                   ) -> dict[str, Any]:
     """Events in one single-camera set (folder of ``*frame<N>`` images)."""
     det = LeakDetector(settings.events)
-    stream = EvidenceStream()
+    stream: EvidenceStream | None = None
     evidence = []
     alarms: dict[int, tuple[float, int]] = {}
     for tr in iter_mono_triples(name, frames, settings.footage):
+        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events))
         ev = stream(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
         evidence.append(ev)
         _feed(det, ev, alarms)
@@ -136,7 +150,8 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
     geometry = StereoGeometry.from_synthetic_camera(meta["camera"])
     params = sequence_parameters(meta, geometry)
     det = LeakDetector(settings.events)
-    stream = EvidenceStream()
+    cam = meta["camera"]
+    stream = EvidenceStream(_zones((int(cam["height"]), int(cam["width"])), settings.events))
     evidence: list[FrameEvidence] = []
     alarms: dict[int, tuple[float, int]] = {}
     window: list[Any] = []
