@@ -107,7 +107,7 @@ def test_first_start_shows_a_preview_while_the_scene_renders_in_background(tmp_p
     gets no preview (it needs its whole loop)."""
     from appliance.runtime.simsite import PREVIEW_VOXEL_M, SimulatedSite, preview_of
 
-    cfg = _load("simulation.frames=30", "simulation.voxel_m=0.06",
+    cfg = _load("simulation.frames=30", "simulation.voxel_m=0.08",
                 f"simulation.cache_dir={tmp_path}")
     site = SimulatedSite(cfg, np.eye(3))
     try:

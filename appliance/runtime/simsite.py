@@ -70,9 +70,9 @@ def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
 
 
 #: Voxel of the quick first scene shown while the configured one renders (first start), m.
-PREVIEW_VOXEL_M = 0.1
-#: Frames of the quick first scene's loop (3 s at 30 Hz).
-PREVIEW_FRAMES = 90
+PREVIEW_VOXEL_M = 0.12
+#: Frames of the quick first scene's loop (2 s at 30 Hz).
+PREVIEW_FRAMES = 60
 
 
 def scene_folder(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Path:
@@ -82,9 +82,9 @@ def scene_folder(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
 
 def preview_of(sim: SimulationConfig) -> SimulationConfig | None:
     """The quick first scene of ``sim``: the same leak on a coarser grid and a shorter loop
-    (about 10x less rendering), or None when there is none to gain or it would not be the
-    same experiment (a release schedule needs its whole loop; the no-release scene renders
-    quickly anyway)."""
+    (about 20x less rendering than the default), or None when there is none to gain or it
+    would not be the same experiment (a release schedule needs its whole loop; the
+    no-release scene renders quickly anyway)."""
     from dataclasses import replace
 
     if sim.scene != "leak" or sim.release_schedule:
@@ -247,7 +247,7 @@ class SimulatedSite:
         """Render (once; cached) the scene and load its ground truth, when needed.
 
         On the first start (nothing cached) a leak scene without a schedule is first
-        rendered as its quick preview (:func:`preview_of`, about 10x less work) and shown
+        rendered as its quick preview (:func:`preview_of`, about 20x less work) and shown
         for this run, with the preview's own exact ground truth, while the configured
         scene renders in a background process for the next start.
         """
