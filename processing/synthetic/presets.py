@@ -138,29 +138,23 @@ NO_RELEASE_NOISE_K = 0.03
 NO_RELEASE_JITTER_PX = 0.3
 
 
-def preset_no_release(
-    n_frames: int = 90,
-    wind_m_s: tuple[float, float, float] = (1.5, 0.0, 0.0),
-    b_m: float = 0.3,
-    distance_m: float = 5.5,
-    seed: int = 7,
-    voxel_m: float = 0.03,
-    walker_period_s: float = 20.0,
-    drift_period_s: float = 600.0,
-    **overrides: Any,
-) -> SequenceConfig:
+def preset_no_release(walker_period_s: float = 20.0, drift_period_s: float = 600.0,
+                      **field: Any) -> SequenceConfig:
     """The field scene with no gas and what a site shows instead: the false-alarm scene.
 
-    The ``field`` cameras in front of a plant wall (textured, 12 m), with temporal noise
-    (NETD 0.03 K), camera jitter (0.3 px), a warm object (a person, 0.3 m, 310 K) walking
-    3 m to and fro at ``distance_m`` every ``walker_period_s``, and the background's
-    temperature drifting as a sine of ``drift_period_s`` whose steepest slope is
-    :data:`NO_RELEASE_DRIFT_K_PER_S`. No source: the fluid is not simulated (nothing moves
+    ``field`` are the arguments of :func:`preset_field` (n_frames, wind, baseline,
+    distance, seed, voxel, overrides). Its cameras in front of a plant wall (textured,
+    12 m), with temporal noise (NETD 0.03 K), camera jitter (0.3 px), a warm object (a
+    person, 0.3 m, 310 K) walking 3 m to and fro at the plume's distance every
+    ``walker_period_s``, and the background's temperature drifting as a sine of
+    ``drift_period_s`` whose steepest slope is :data:`NO_RELEASE_DRIFT_K_PER_S`. No source: the fluid is not simulated (nothing moves
     in it), so frames cost only their rendering. Loop such a scene over a multiple of both
     periods and it has no jump.
     """
-    cfg = preset_field(n_frames=n_frames, wind_m_s=wind_m_s, b_m=b_m, distance_m=distance_m,
-                       seed=seed, voxel_m=voxel_m)
+    cfg = preset_field(**field)
+    b_m = cfg.camera.b_m
+    distance_m = cfg.volume_origin_m[2] + 0.5 * cfg.fluid.shape[0] * cfg.fluid.voxel_m
+    seed = cfg.seed
     span_m = 3.0
     walker = MovingObject(z_m=distance_m, radius_m=0.3, center_m=(b_m / 2 - span_m / 2, 0.2),
                           velocity_m_s=(2.0 * span_m / walker_period_s, 0.0), t_k=310.0,
@@ -172,7 +166,7 @@ def preset_no_release(
                               drift_period_s=drift_period_s),
         options=RenderOptions(noise_netd_k=NO_RELEASE_NOISE_K, jitter_px=NO_RELEASE_JITTER_PX,
                               moving_object=walker))
-    return replace(cfg, **overrides) if overrides else cfg
+    return cfg
 
 
 PRESETS: dict[str, Callable[..., SequenceConfig]] = {
