@@ -16,7 +16,8 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
   (a leak keeps feeding it; a warm object covers any place only while it passes, its
   uniform middle not even then);
 - *a source in view*: before an event has started, a frame whose upstream end touches the
-  image border (within :data:`BORDER_PX`) counts only when its gas covers the candidate's
+  image border (within :data:`BORDER_PX`; its source within twice that) counts only when
+  its gas covers the candidate's
   source: gas entering across the edge cannot be located, and a warm object walking slowly
   into the view keeps its trailing end pinned to the border for seconds;
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
@@ -123,7 +124,7 @@ class FrameEvidence:
         Mean unit flow direction of the gas pixels (length = coherence).
     on_border : bool
         Some of the most upstream gas pixels lie within :data:`BORDER_PX` of the image's
-        edge (the gas enters the view there).
+        edge (the gas enters the view there), or the source within twice that.
     coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
         Which cells of the image hold gas (to ask whether a source is still under gas).
     """
@@ -210,10 +211,13 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
     up = along <= np.percentile(along, 2.0)
     source = (float(xs[up].mean()), float(ys[up].mean()))
     h, w = mask.shape
-    # any of the most upstream pixels at the edge, not their mean: a warm object walking
-    # into the view has its upstream end on the edge, its mean 15-20 px inside
+    # any of the most upstream pixels at the edge, not only their mean (a warm object walking
+    # into the view has its upstream end on the edge, its mean 15-20 px inside); and a
+    # source within two border widths (a strip along the edge where registration resamples)
     ux, uy = xs[up], ys[up]
-    on_border = bool(min(ux.min(), uy.min(), w - 1 - ux.max(), h - 1 - uy.max()) < BORDER_PX)
+    on_border = bool(min(ux.min(), uy.min(), w - 1 - ux.max(), h - 1 - uy.max()) < BORDER_PX
+                     or min(source[0], source[1], w - 1 - source[0], h - 1 - source[1])
+                     < 2 * BORDER_PX)
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
                          resultant=(float(resultant[0]), float(resultant[1])),
                          on_border=on_border, coverage=_coverage(mask), **extra)
