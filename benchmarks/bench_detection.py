@@ -17,7 +17,7 @@ keeps up at 30 / every Hz (the event logic's windows are in seconds). Slow (a fe
 per minute of scene on this class of machine), hence a benchmark, not a test;
 ``tests/test_detection_simulated.py`` runs short versions.
 
-    python benchmarks/bench_detection.py schedule --json schedule.json
+    python benchmarks/bench_detection.py schedule --every 6 --json schedule.json
     python benchmarks/bench_detection.py no-release --minutes 30 --json no_release.json
 """
 
@@ -109,12 +109,14 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="what", required=True)
     s = sub.add_parser("schedule", help="detection delay of every release of a schedule")
-    s.add_argument("--intervals", default="1:9,15:21",
-                   help="ON:OFF[,ON:OFF...] in s within a period (default 1:9,15:21)")
-    s.add_argument("--period", type=float, default=27.0, help="schedule period, s (27)")
-    s.add_argument("--cycles", type=int, default=2, help="periods to simulate (2)")
-    s.add_argument("--voxel", type=float, default=0.04,
-                   help="fluid voxel, m (0.04, the daemon's default)")
+    s.add_argument("--intervals", default="1:8,18:24",
+                   help="ON:OFF[,ON:OFF...] in s within a period (default 1:8,18:24; leave "
+                        "the end window, 6 s, plus a few s for the gas to clear between "
+                        "releases, or two releases are one event)")
+    s.add_argument("--period", type=float, default=30.0, help="schedule period, s (30)")
+    s.add_argument("--cycles", type=int, default=1, help="periods to simulate (1)")
+    s.add_argument("--voxel", type=float, default=0.06,
+                   help="fluid voxel, m (0.06; the daemon's default 0.04 renders 3x slower)")
     n = sub.add_parser("no-release", help="false events in a no-release scene")
     n.add_argument("--minutes", type=float, default=30.0, help="scene time, min (30)")
     n.add_argument("--walker-s", type=float, default=20.0,
