@@ -42,6 +42,7 @@ from appliance.evaluation.detection import (  # noqa: E402
     score_releases,
     simulated_frames,
 )
+from appliance.runtime.events import EventConfig  # noqa: E402
 from processing.synthetic.presets import (  # noqa: E402
     FIELD_FRAME_RATE_HZ,
     preset_field,
@@ -67,13 +68,12 @@ def _print_event(kind: str, event: Any) -> None:
 
 
 def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, voxel_m: float,
-                 every: int, seed: int) -> dict[str, Any]:
+                 every: int, seed: int, settings: DetectionSettings) -> dict[str, Any]:
     """The scheduled leak for ``cycles`` periods; per-release delays and false events."""
     schedule = ReleaseSchedule.from_lists(intervals, period_s)
     duration = cycles * period_s
     cfg = replace(preset_field(n_frames=round(duration * FIELD_FRAME_RATE_HZ),
                                voxel_m=voxel_m, seed=seed), release_schedule=schedule)
-    settings = DetectionSettings()
     t0 = time.perf_counter()
     report = detect_frames(_progress(simulated_frames(cfg, every), 5.0), cfg.meta(), settings,
                            every, on_event=_print_event)
@@ -87,14 +87,14 @@ def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, vox
 
 
 def run_no_release(minutes: float, walker_s: float, drift_s: float, every: int, seed: int,
-                   t0_s: float = 0.0) -> dict[str, Any]:
+                   settings: DetectionSettings) -> dict[str, Any]:
     """The no-release scene for ``minutes`` of scene time; every event is false."""
     n = round(minutes * 60.0 * FIELD_FRAME_RATE_HZ)
     cfg = preset_no_release(n_frames=n, walker_period_s=walker_s, drift_period_s=drift_s,
                             seed=seed)
     t0 = time.perf_counter()
     report = detect_frames(_progress(simulated_frames(cfg, every), 60.0), cfg.meta(),
-                           DetectionSettings(), every, on_event=_print_event)
+                           settings, every, on_event=_print_event)
     per_frame = report.pop("per_frame")
     return {"scene": "no_release", "minutes": minutes, "walker_period_s": walker_s,
             "drift_period_s": drift_s, "every": every, "seed": seed,
@@ -128,11 +128,18 @@ def main(argv: list[str] | None = None) -> int:
                        help="process every N-th triple (10: 3 results/s, the daemon's rate "
                             "on a 2-core machine)")
         q.add_argument("--seed", type=int, default=7)
+        q.add_argument("--min-duration-s", type=float, default=EventConfig().min_duration_s,
+                       help="events.min_duration_s (default the config's; the start "
+                            "window is at least 1 s longer)")
         q.add_argument("--json", type=Path, help="write the result here")
     args = p.parse_args(argv)
+    settings = DetectionSettings(events=EventConfig(
+        min_duration_s=args.min_duration_s,
+        start_window_s=max(EventConfig().start_window_s, args.min_duration_s + 1.0)))
     if args.what == "schedule":
         pairs = [[float(v) for v in part.split(":")] for part in args.intervals.split(",")]
-        out = run_schedule(pairs, args.period, args.cycles, args.voxel, args.every, args.seed)
+        out = run_schedule(pairs, args.period, args.cycles, args.voxel, args.every, args.seed,
+                           settings)
         for r in out["releases"]:
             delay = "missed" if r["delay_s"] is None else f"alarm after {r['delay_s']:.2f} s"
             print(f"release {r['on_s']:.1f}-{r['off_s']:.1f} s: {delay}")
@@ -140,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{out['false_events']}, max delay {out['max_delay_s']} s "
               f"({out['wall_s']} s wall)")
     else:
-        out = run_no_release(args.minutes, args.walker_s, args.drift_s, args.every, args.seed)
+        out = run_no_release(args.minutes, args.walker_s, args.drift_s, args.every, args.seed,
+                             settings)
         print(f"{args.minutes:g} min of no-release scene, {out['triples']} triples at "
               f"{out['processing_hz']:g} Hz: {out['false_events']} false events "
               f"({out['gas_triples']} triples with gas pixels, {out['positive_triples']} "
