@@ -14,7 +14,8 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
 - *gas that stays at the source*: to start, the place of the candidate's first sources must have
   held gas in at least :data:`PERSISTENCE` of the frames of the last ``min_duration_s``
   (a leak keeps feeding it; a warm object covers any place only while it passes, its
-  uniform middle not even then);
+  uniform middle not even then), and the gas must lie downstream of it along the latest
+  flow direction;
 - *a source in view*: before an event has started, a frame whose upstream end touches the
   image border (within :data:`BORDER_PX`; its source within twice that) counts only when
   its gas covers the candidate's
@@ -358,6 +359,7 @@ class LeakDetector:
         # Gas of every frame of the last min_duration_s while no event is on (_persistent).
         self._coverages: collections.deque[tuple[float, np.ndarray | None]] = (
             collections.deque())
+        self._last_resultant: tuple[float, float] | None = None
 
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
@@ -420,7 +422,22 @@ class LeakDetector:
         if not spans:
             return True  # evidence without gas maps (tests of the other rules)
         held = sum(covers(cov, ref) for cov in spans)
-        return held >= PERSISTENCE * len(spans)
+        return held >= PERSISTENCE * len(spans) and self._downstream(spans[-1], ref)
+
+    def _downstream(self, coverage: np.ndarray, ref: tuple[float, float]) -> bool:
+        """Whether the gas lies downstream of the source ``ref`` along the latest flow
+        direction, as a plume does: after a warm object turns round, the smoothed "upstream"
+        direction lags for seconds, its "source" is its leading end, and its body covers
+        that place as it advances (it started events in the no-release scene)."""
+        if self._last_resultant is None:
+            return True
+        ys, xs = np.nonzero(coverage)
+        if len(xs) == 0:
+            return True
+        c = COVERAGE_CELL_PX
+        centroid = ((xs.mean() + 0.5) * c - ref[0], (ys.mean() + 0.5) * c - ref[1])
+        return bool(centroid[0] * self._last_resultant[0]
+                    + centroid[1] * self._last_resultant[1] > 0.0)
 
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
@@ -431,6 +448,8 @@ class LeakDetector:
             if len(self._candidate_sources) <= ANCHOR_FRAMES and ev.coverage is not None:
                 self._anchor_coverage = (ev.coverage if self._anchor_coverage is None
                                          else self._anchor_coverage | ev.coverage)
+        if ev.resultant is not None:
+            self._last_resultant = ev.resultant
         self._recent.append((ev.t_s, ev.frame, pos))
         horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
         while self._recent and self._recent[0][0] < ev.t_s - horizon:
