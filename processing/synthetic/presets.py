@@ -147,9 +147,9 @@ def preset_no_release(walker_period_s: float = 20.0, drift_period_s: float = 600
     12 m), with temporal noise (NETD 0.03 K), camera jitter (0.3 px), a warm object (a
     person, 0.3 m, 310 K) walking 3 m to and fro at the plume's distance every
     ``walker_period_s``, and the background's temperature drifting as a sine of
-    ``drift_period_s`` whose steepest slope is :data:`NO_RELEASE_DRIFT_K_PER_S`. No source: the fluid is not simulated (nothing moves
-    in it), so frames cost only their rendering. Loop such a scene over a multiple of both
-    periods and it has no jump.
+    ``drift_period_s`` whose steepest slope is :data:`NO_RELEASE_DRIFT_K_PER_S`. No source:
+    the fluid is not simulated (nothing moves in it), so frames cost only their rendering.
+    Loop such a scene over a multiple of both periods and it has no jump.
     """
     cfg = preset_field(**field)
     b_m = cfg.camera.b_m

@@ -78,13 +78,18 @@ class SyntheticStereoScene:
 
     def _step_at(self, t_s: float) -> None:
         """One fluid step starting at scene time ``t_s`` (s; 0 = first frame), with the
-        release switched by the schedule. A scene without sources has nothing to move: its
-        state (uniform wind, no gas) is steady, so no step is computed."""
-        if not self.config.fluid.sources:
+        release switched by the schedule. A state without sources, gas or any velocity but
+        the uniform wind is steady: no step is computed (the no-release scene)."""
+        if not self.config.fluid.sources and self._steady():
             return
         schedule = self.config.release_schedule
         self.sim.release_on = schedule is None or schedule.is_on(t_s)
         self.sim.step()
+
+    def _steady(self) -> bool:
+        st, wind = self.sim.state, self.sim.wind_m_s
+        return bool(not st.c.any() and np.all(st.u == wind[0]) and np.all(st.v == wind[1])
+                    and np.all(st.w == wind[2]))
 
     def release_rate_g_s(self, t_s: float) -> float:
         """The true release rate at scene time ``t_s`` (mean over the puffing), g/s."""
