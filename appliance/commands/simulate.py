@@ -20,7 +20,9 @@ CALIBRATION_NAME = "calibration.yaml"
 
 _PRESET_HELP = (
     "preset to generate (repeatable): table2 (= table2_1, table2_2, table2_3; the default), "
-    "table2_1, table2_2, table2_3, field"
+    "table2_1, table2_2, table2_3, field, no_release (the field site without gas: noise, "
+    "jitter, a warm person walking to and fro, background drift, plant wall; for false-alarm "
+    "tests)"
 )
 
 
@@ -59,10 +61,15 @@ def register(root: argparse._SubParsersAction) -> None:
                         "(default 1; e.g. 0.5 for a quick coarse look)")
     p.add_argument("--spinup-steps", type=int, metavar="N",
                    help="simulation steps before the first frame (default: the preset's)")
-    noise = p.add_argument_group("non-ideal camera effects (all off by default, as in Sec. 5.1)")
-    noise.add_argument("--noise", type=float, default=0.0, metavar="NETD_K",
+    p.add_argument("--release-schedule", metavar="ON:OFF[,ON:OFF...]",
+                   help="switch the release on and off: intervals in s from the first frame, "
+                        "e.g. 1:9,15:20; the sequence's length is the schedule's period "
+                        "(default: always on)")
+    noise = p.add_argument_group("non-ideal camera effects (off by default, as in Sec. 5.1; "
+                                 "no_release has its own)")
+    noise.add_argument("--noise", type=float, default=None, metavar="NETD_K",
                        help="temporal noise as a NETD in K, e.g. 0.03 (default 0: none)")
-    noise.add_argument("--jitter", type=float, default=0.0, metavar="PX",
+    noise.add_argument("--jitter", type=float, default=None, metavar="PX",
                        help="std. dev. of a random per-frame shift of each camera, px (default 0)")
     noise.add_argument("--radiometric-mismatch", action="store_true",
                        help="right camera with 4%% more gain and 150 counts more offset")
@@ -74,7 +81,7 @@ def register(root: argparse._SubParsersAction) -> None:
     noise.add_argument("--moving-object", action="store_true",
                        help="a warm disk moving behind the gas")
     scene = p.add_argument_group("scene")
-    scene.add_argument("--background", choices=("uniform", "plant", "sky"), default="uniform",
+    scene.add_argument("--background", choices=("uniform", "plant", "sky"), default=None,
                        help="what lies behind the gas: a uniform black body (default, the "
                             "paper's scenes), a textured wall of plant equipment 12 m away, "
                             "or clear sky")
@@ -105,7 +112,7 @@ def _expand_presets(names: list[str] | None) -> list[str]:
 def _build_config(name: str, args: argparse.Namespace) -> Any:
     from dataclasses import replace
 
-    from processing.synthetic.imaging import Background, MovingObject
+    from processing.synthetic.imaging import MovingObject
     from processing.synthetic.sequences import RenderOptions, preset
 
     kwargs: dict[str, Any] = {}
@@ -160,18 +167,44 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
             raise ValueError(f"--gas-temperature must be within 150..400 K, got "
                              f"{args.gas_temperature}")
         cfg = replace(cfg, radiometry=replace(cfg.radiometry, t_gas_k=args.gas_temperature))
-    cfg = replace(cfg, background=Background(kind=args.background, seed=cfg.seed))
+    if args.background is not None:
+        cfg = replace(cfg, background=replace(cfg.background, kind=args.background))
+    cfg = replace(cfg, background=replace(cfg.background, seed=cfg.seed))
+    base = cfg.options  # the preset's own effects (no_release), else none
     opts = RenderOptions(
-        noise_netd_k=args.noise,
-        jitter_px=args.jitter,
+        noise_netd_k=base.noise_netd_k if args.noise is None else args.noise,
+        jitter_px=base.jitter_px if args.jitter is None else args.jitter,
         radiometric_mismatch=args.radiometric_mismatch,
         gain_mismatch=args.gain_mismatch,
         lens_k1=args.lens_k1,
-        moving_object=MovingObject() if args.moving_object else None,
+        moving_object=base.moving_object or (MovingObject() if args.moving_object else None),
     )
     cfg = replace(cfg, options=opts)
+    if args.release_schedule:
+        if not cfg.fluid.sources:
+            raise ValueError(f"--release-schedule: preset {name} releases no gas")
+        cfg = replace(cfg, release_schedule=_schedule(args.release_schedule,
+                                                      cfg.n_frames * cfg.frame_interval_s))
     cfg.validate()
     return cfg
+
+
+def _schedule(text: str, period_s: float) -> Any:
+    """``ON:OFF[,ON:OFF...]`` (s) as a release schedule over the sequence's length."""
+    from processing.synthetic.schedule import ReleaseSchedule
+
+    try:
+        pairs = [[float(v) for v in part.split(":")] for part in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--release-schedule: expected ON:OFF[,ON:OFF...] in s, got "
+                         f"{text!r}") from None
+    if any(len(p) != 2 for p in pairs):
+        raise ValueError(f"--release-schedule: expected ON:OFF[,ON:OFF...] in s, got {text!r}")
+    try:
+        return ReleaseSchedule.from_lists(pairs, period_s)
+    except ValueError as exc:
+        raise ValueError(f"--release-schedule: {exc} (the sequence lasts {period_s:g} s)"
+                         ) from None
 
 
 def run(args: argparse.Namespace) -> int:

@@ -224,6 +224,18 @@ class SimulationConfig:
     release_rate_g_s: float = _opt("gas release rate of the simulated leak, g/s", 3.0,
                                    gt=0.0, max=1000.0)
     seed: int = _opt("random seed of the simulated turbulence", 7, min=0)
+    scene: Literal["leak", "no_release"] = _opt(
+        "what the simulated cameras show: leak (the gas release) or no_release (no gas, "
+        "but temporal noise, camera jitter, a warm person walking to and fro once per loop "
+        "and a slow background drift, in front of a plant wall: for false-alarm tests)",
+        "leak")
+    release_schedule: list[Any] = _opt(
+        "leak scene: release on/off intervals [[on_s, off_s], ...], seconds from the start "
+        "of the loop; the loop (frames at 30 Hz) is the schedule's period and repeats it. "
+        "Empty = always on. The simulation starts from the gas the end of the loop leaves "
+        "and the ground truth follows the gas that is really there (it drifts on after "
+        "the release stops); end the last interval about 3 s before the loop ends so the "
+        "gas has left the view when the loop restarts", factory=list, intervals=True)
     cache_dir: Path | None = _opt(
         "where rendered scenes are cached; null = $XDG_CACHE_HOME/ogiflow or "
         "~/.cache/ogiflow", None,

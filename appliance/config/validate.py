@@ -105,6 +105,8 @@ def _convert_scalar(path: str, tp: Any, value: Any, meta: Mapping[str, Any],
         return dict(value)
     if origin is list and meta.get("polygons"):
         return _convert_polygons(path, value, errors)
+    if origin is list and meta.get("intervals"):
+        return _convert_intervals(path, value, errors)
     raise TypeError(f"config field {path} has unsupported type {tp!r}")  # programming error
 
 
@@ -168,6 +170,44 @@ def _build(cls: type, data: Any, prefix: str, errors: list[str]) -> Any:
         return cls()
 
 
+def _convert_intervals(path: str, value: Any, errors: list[str]) -> Any:
+    """A list of time intervals [on_s, off_s] (finite numbers, on_s >= 0)."""
+    def ok(iv: Any) -> bool:
+        return (isinstance(iv, list) and len(iv) == 2 and all(
+            isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c)
+            for c in iv) and 0 <= iv[0] < iv[1])
+
+    if not isinstance(value, list):
+        errors.append(f"{path}: expected a list of [on_s, off_s] intervals, got "
+                      f"{_describe(value)}")
+        return value
+    for i, iv in enumerate(value):
+        if not ok(iv):
+            errors.append(f"{path}[{i}]: expected [on_s, off_s] with 0 <= on_s < off_s, "
+                          f"got {_describe(iv)}")
+            return value
+    return [[float(c) for c in iv] for iv in value]
+
+
+def _check_schedule(cfg: Config, errors: list[str]) -> None:
+    """The release schedule fits in the simulated loop, sorted and without overlap."""
+    from processing.synthetic.presets import FIELD_FRAME_RATE_HZ
+    from processing.synthetic.schedule import ReleaseSchedule
+
+    sim = cfg.simulation
+    if not sim.release_schedule:
+        return
+    if sim.scene != "leak":
+        errors.append("simulation.release_schedule: only the leak scene releases gas "
+                      f"(simulation.scene is {sim.scene!r})")
+        return
+    try:
+        ReleaseSchedule.from_lists(sim.release_schedule, sim.frames / FIELD_FRAME_RATE_HZ)
+    except ValueError as exc:
+        errors.append(f"simulation.release_schedule: {exc} (the loop is simulation.frames "
+                      f"= {sim.frames} frames at {FIELD_FRAME_RATE_HZ:g} Hz)")
+
+
 def _cross_checks(cfg: Config, errors: list[str]) -> None:
     """Rules that involve more than one key."""
     live = cfg.live
@@ -191,6 +231,7 @@ def _cross_checks(cfg: Config, errors: list[str]) -> None:
         errors.append(f"live.file: {str(cfg.live.file)!r} is a directory")
     _check_calibration(cfg, errors)
     _check_processing(cfg, errors)
+    _check_schedule(cfg, errors)
 
 
 def _check_serve(live: Any, errors: list[str]) -> None:

@@ -15,6 +15,7 @@ sees separate runs as separate stretches of time.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,13 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.footage import FootageSettings, find_sets, iter_mono_triples
-from appliance.runtime.events import EventConfig, EvidenceStream, FrameEvidence, LeakDetector
+from appliance.runtime.events import (
+    EventConfig,
+    EvidenceStream,
+    FrameEvidence,
+    LeakDetector,
+    zone_mask,
+)
 
 
 @dataclass(frozen=True)
@@ -45,13 +52,19 @@ class DetectionSettings:
 
 
 def _report(frames: int, evidence: list[FrameEvidence], det: LeakDetector,
-            events: EventConfig) -> dict[str, Any]:
+            events: EventConfig, alarms: dict[int, tuple[float, int]] | None = None
+            ) -> dict[str, Any]:
     gas = sum(1 for e in evidence if e.gas_pixels >= events.min_gas_pixels)
+    alarms = alarms or {}
     return {
         "frames": frames,
         "gas_frames": gas,
         "events": [{"start_frame": e.start_frame, "end_frame": e.end_frame,
                     "start_t_s": e.start_t_s, "end_t_s": e.end_t_s,
+                    # when the logic said "leak" (the start is back-dated to the first
+                    # positive frame): the alarm's delay
+                    "alarm_t_s": alarms.get(e.id, (None, None))[0],
+                    "alarm_frame": alarms.get(e.id, (None, None))[1],
                     "end_reason": e.end_reason, "source_xy": e.source_xy,
                     "mean_rate_g_s": e.mean_rate_g_s, "confidence": round(e.confidence, 3)}
                    for e in det.finished],
@@ -71,63 +84,110 @@ def _positives(evidence: list[FrameEvidence], events: EventConfig) -> list[bool]
     return out
 
 
+def _zones(shape: tuple[int, int], events: EventConfig) -> np.ndarray | None:
+    """The watched pixels of the config's zones, as the daemon's monitor builds them."""
+    if not events.watch_zones and not events.ignore_zones:
+        return None
+    return zone_mask(shape, events.watch_zones, events.ignore_zones)
+
+
+def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, int]],
+          on_event: Callable[[str, Any], None] | None = None) -> None:
+    for kind, event in det.update(ev):
+        if kind == "start":
+            alarms[event.id] = (ev.t_s, ev.frame)
+        if on_event is not None and kind != "update":
+            on_event(kind, event)
+
+
 def detect_folder(name: str, frames: list[tuple[int, Path]], settings: DetectionSettings
                   ) -> dict[str, Any]:
     """Events in one single-camera set (folder of ``*frame<N>`` images)."""
     det = LeakDetector(settings.events)
-    stream = EvidenceStream()
+    stream: EvidenceStream | None = None
     evidence = []
+    alarms: dict[int, tuple[float, int]] = {}
     for tr in iter_mono_triples(name, frames, settings.footage):
+        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events))
         ev = stream(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
         evidence.append(ev)
-        det.update(ev)
+        _feed(det, ev, alarms)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
-    return _report(len(frames), evidence, det, settings.events)
+    return _report(len(frames), evidence, det, settings.events, alarms)
 
 
 def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]:
     """Events in one synthetic stereo sequence (``ogiflow simulate``), whole chain."""
-    from processing.chain import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
     from processing.synthetic import read_frame, read_sequence_meta
 
     meta = read_sequence_meta(folder)
-    geometry = StereoGeometry.from_synthetic_camera(meta["camera"])
     n = int(meta["n_frames"])
+    return detect_frames((read_frame(folder, k, meta) for k in range(n)), meta, settings)
+
+
+def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: DetectionSettings,
+                  every: int = 1, on_event: Callable[[str, Any], None] | None = None
+                  ) -> dict[str, Any]:
+    """Events in a stream of synthetic stereo frames (``SyntheticFrame``), whole chain.
+
+    Parameters
+    ----------
+    frames : iterable of SyntheticFrame
+        Consecutive frames of one sequence (read from disk or rendered on the fly).
+    meta : dict
+        The sequence's ``meta.json`` object (camera, background, simulation volume).
+    every : int
+        Process the triple starting at every ``every``-th frame only, as a daemon that
+        keeps up at ``frame rate / every`` does (the event logic's windows are in seconds).
+    on_event : callable, optional
+        ``(kind, LeakEvent)`` at every start and end, as it happens (long runs).
+    """
+    from processing.chain import ChainState, StereoGeometry, compute_scene_flow
+
+    if every < 1:
+        raise ValueError(f"every must be >= 1, got {every}")
+    geometry = StereoGeometry.from_synthetic_camera(meta["camera"])
+    params = sequence_parameters(meta, geometry)
     det = LeakDetector(settings.events)
-    stream = EvidenceStream()
+    cam = meta["camera"]
+    stream = EvidenceStream(_zones((int(cam["height"]), int(cam["width"])), settings.events))
     evidence: list[FrameEvidence] = []
+    alarms: dict[int, tuple[float, int]] = {}
     window: list[Any] = []
-    params: ChainParameters | None = None
     state = ChainState()
-    for k in range(n):
-        window.append(read_frame(folder, k, meta))
-        if params is None:
-            params = _sequence_parameters(window[0], geometry)
-        if len(window) < 3:
+    n = 0
+    for frame in frames:
+        n += 1
+        window = [*window[-2:], frame]
+        if len(window) < 3 or window[0].index % every:
             continue
-        trio, window = window, window[1:]
-        res = compute_scene_flow([f.left for f in trio], [f.right for f in trio],
-                                 [f.t_s for f in trio], geometry, params, state)
-        ev = stream(trio[0].t_s, trio[0].index, res.gas_mask, res.flow)
+        res = compute_scene_flow([f.left for f in window], [f.right for f in window],
+                                 [f.t_s for f in window], geometry, params, state)
+        ev = stream(window[0].t_s, window[0].index, res.gas_mask, res.flow)
         evidence.append(ev)
-        det.update(ev)
+        _feed(det, ev, alarms, on_event)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
-    return _report(n, evidence, det, settings.events)
+    return _report(n, evidence, det, settings.events, alarms)
 
 
-def _sequence_parameters(first: Any, geometry: Any) -> Any:
-    """Chain parameters of a synthetic sequence: the site's d0 (disparity of twice the gas
-    distance, as the simulated appliance configures it), no registration (ideal cameras)."""
+def sequence_parameters(meta: dict[str, Any], geometry: Any) -> Any:
+    """Chain parameters of a synthetic sequence, as the simulated appliance configures them:
+    d0 = the disparity of twice the distance of the simulated volume's centre, and
+    registration only on a textured background (a uniform one gives it nothing to lock on
+    but the gas)."""
     from processing.chain import ChainParameters
 
-    z = np.asarray(first.gt_position)[..., 2][np.asarray(first.gt_mask, bool)]
-    z = z[np.isfinite(z)]
-    if z.size == 0:
-        return ChainParameters(register=False)
-    d0 = geometry.camera_constant * geometry.baseline / (2.0 * float(np.median(z)))
-    return ChainParameters(register=False, d0=d0)
+    sim = meta.get("simulation", {})
+    origin = sim.get("volume_origin_m")
+    grid = sim.get("grid_zyx")
+    register = meta.get("background", {}).get("kind", "uniform") != "uniform"
+    if not origin or not grid:
+        return ChainParameters(register=register)
+    z = float(origin[2]) + 0.5 * float(grid[0]) * float(sim["voxel_m"])
+    d0 = geometry.camera_constant * geometry.baseline / (2.0 * z)
+    return ChainParameters(register=register, d0=d0)
 
 
 def evaluate_detection(data: Path, settings: DetectionSettings) -> dict[str, dict[str, Any]]:
@@ -165,3 +225,48 @@ def frames_in_events(report: dict[str, Any]) -> np.ndarray:
     for e in report["events"]:
         covered.extend(range(e["start_frame"], (e["end_frame"] or e["start_frame"]) + 1))
     return np.asarray(sorted(set(covered)), dtype=int)
+
+
+def simulated_frames(config: Any, every: int = 1) -> Iterator[Any]:
+    """Frames of a synthetic sequence rendered on the fly, for :func:`detect_frames`.
+
+    The fluid advances through every frame (the gas must move as it does), but only the
+    frames of the processed triples (``index % every`` in 0, 1, 2) are rendered into
+    camera images; nothing is written to disk, so hours of scene cost no space.
+    """
+    from processing.synthetic.sequences import SyntheticStereoScene
+
+    scene = SyntheticStereoScene(config)
+    for k in range(config.n_frames):
+        gas = scene.next_gas()
+        if k % every < 3:
+            yield scene.renderer.render(gas)
+
+
+def score_releases(report: dict[str, Any], releases: list[tuple[float, float]],
+                   hold_s: float) -> dict[str, Any]:
+    """Match a set's events to the true releases of a schedule.
+
+    A release (on_s, off_s) is found by the first event whose alarm falls in
+    ``[on_s, off_s + hold_s]`` (gas released last keeps drifting through the view for a
+    while); its delay is alarm time - on_s. Events matching no release are false events.
+
+    Returns
+    -------
+    dict with ``releases`` (per release: on_s, off_s, found, delay_s), ``found``,
+    ``false_events`` and ``max_delay_s`` (None when nothing was found).
+    """
+    used: set[int] = set()
+    rows = []
+    for on, off in releases:
+        hit = next((i for i, e in enumerate(report["events"]) if i not in used
+                    and e["alarm_t_s"] is not None and on <= e["alarm_t_s"] <= off + hold_s),
+                   None)
+        if hit is not None:
+            used.add(hit)
+        delay = None if hit is None else report["events"][hit]["alarm_t_s"] - on
+        rows.append({"on_s": on, "off_s": off, "found": hit is not None, "delay_s": delay})
+    delays = [r["delay_s"] for r in rows if r["delay_s"] is not None]
+    return {"releases": rows, "found": sum(r["found"] for r in rows),
+            "false_events": len(report["events"]) - len(used),
+            "max_delay_s": max(delays) if delays else None}

@@ -168,6 +168,8 @@ class Appliance:
         self._prepare()
         with contextlib.ExitStack() as stack:
             stack.callback(self._restore_signals)
+            if self.site is not None:
+                stack.callback(self.site.close)  # a background scene render
             self._start_recording(stack)
             self._start_live(stack)
             self.monitor = self._make_monitor(stack)
@@ -306,7 +308,14 @@ class Appliance:
         from appliance.runtime.monitor import monitor_from_config
 
         assert self.geometry is not None and self.site is not None
-        true_rate = self.site.truth.mean_release_g_s if self.site.truth is not None else None
+        sim = self.cfg.simulation
+        true_rate = None
+        if self.site.truth is not None and sim.scene == "no_release":
+            true_rate = 0.0
+        elif self.site.truth is not None and not sim.release_schedule:
+            # a scheduled release has no single true rate (SceneTruth.release_rate_g_s
+            # gives it per scene frame): none is shown rather than a wrong one
+            true_rate = self.site.truth.mean_release_g_s
         return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
                                    on_event=self._on_event, true_rate_g_s=true_rate)
 

@@ -11,6 +11,16 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
 - *a fixed source*: the upstream end of the plume stays within ``max_source_shift_px`` of
   the running median over the event's frames, or gas still covers that median (a moving
   object drags its "source" along and leaves the place where it was first seen);
+- *gas that stays at the source*: to start, the place of the candidate's first sources must have
+  held gas in at least :data:`PERSISTENCE` of the frames of the last ``min_duration_s``
+  (a leak keeps feeding it; a warm object covers any place only while it passes, its
+  uniform middle not even then), and the gas must lie downstream of it along the latest
+  flow direction;
+- *a source in view*: before an event has started, a frame whose upstream end touches the
+  image border (within :data:`BORDER_PX`; its source within twice that) counts only when
+  its gas covers the candidate's
+  source: gas entering across the edge cannot be located, and a warm object walking slowly
+  into the view keeps its trailing end pinned to the border for seconds;
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
   ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
   it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
@@ -113,6 +123,9 @@ class FrameEvidence:
         3D position of the source, m (camera frame).
     resultant : (float, float) or None
         Mean unit flow direction of the gas pixels (length = coherence).
+    on_border : bool
+        Some of the most upstream gas pixels lie within :data:`BORDER_PX` of the image's
+        edge (the gas enters the view there), or the source within twice that.
     coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
         Which cells of the image hold gas (to ask whether a source is still under gas).
     """
@@ -127,6 +140,7 @@ class FrameEvidence:
     wind_m_s: tuple[float, float, float] | None = None
     source_xyz_m: tuple[float, float, float] | None = None
     resultant: tuple[float, float] | None = None
+    on_border: bool = False
     coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def covers(self, xy: tuple[float, float]) -> bool:
@@ -150,6 +164,14 @@ ANCHOR_FRAMES = 5
 
 #: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
 COVERAGE_CELL_PX = 8
+
+#: Gas this close to the image's edge among a frame's most upstream pixels means it enters
+#: the view there, px (start rule).
+BORDER_PX = 8
+
+#: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
+#: source (one coverage cell around it) held gas, for the event to start.
+PERSISTENCE = 0.8
 
 
 def _coverage(mask: np.ndarray) -> np.ndarray:
@@ -189,9 +211,17 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
     along = xs * d[0] + ys * d[1]
     up = along <= np.percentile(along, 2.0)
     source = (float(xs[up].mean()), float(ys[up].mean()))
+    h, w = mask.shape
+    # any of the most upstream pixels at the edge, not only their mean (a warm object walking
+    # into the view has its upstream end on the edge, its mean 15-20 px inside); and a
+    # source within two border widths (a strip along the edge where registration resamples)
+    ux, uy = xs[up], ys[up]
+    on_border = bool(min(ux.min(), uy.min(), w - 1 - ux.max(), h - 1 - uy.max()) < BORDER_PX
+                     or min(source[0], source[1], w - 1 - source[0], h - 1 - source[1])
+                     < 2 * BORDER_PX)
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
                          resultant=(float(resultant[0]), float(resultant[1])),
-                         coverage=_coverage(mask), **extra)
+                         on_border=on_border, coverage=_coverage(mask), **extra)
 
 
 class EvidenceStream:
@@ -326,6 +356,10 @@ class LeakDetector:
         # Gas of the candidate's first positive frames (``_same_source``), kept while the
         # event lasts.
         self._anchor_coverage: np.ndarray | None = None
+        # Gas of every frame of the last min_duration_s while no event is on (_persistent).
+        self._coverages: collections.deque[tuple[float, np.ndarray | None]] = (
+            collections.deque())
+        self._last_resultant: tuple[float, float] | None = None
 
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
@@ -337,6 +371,9 @@ class LeakDetector:
         ref = (self.current.source_xy if self.current is not None
                else (_median_point(self._candidate_sources) if self._candidate_sources
                      else None))
+        if self.current is None and ev.on_border:
+            # only the jumping end of a plume whose source is known and under this gas
+            return ref is not None and ev.covers(ref)
         return ref is None or self._same_source(ev, ref)
 
     def _same_source(self, ev: FrameEvidence, ref: tuple[float, float]) -> bool:
@@ -372,6 +409,36 @@ class LeakDetector:
         return self._same_source(
             ev, _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
 
+    def _persistent(self, now: float) -> bool:
+        """Whether the place of the candidate's first sources (their median, one coverage
+        cell around it) held gas in at least :data:`PERSISTENCE` of the frames of the last
+        ``min_duration_s`` (module docstring)."""
+        if not self._candidate_sources:
+            return True
+        # where the candidate was first seen: a running median would follow a moving object
+        ref = _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES])
+        spans = [cov for t, cov in self._coverages
+                 if t >= now - self.cfg.min_duration_s and cov is not None]
+        if not spans:
+            return True  # evidence without gas maps (tests of the other rules)
+        held = sum(covers(cov, ref) for cov in spans)
+        return held >= PERSISTENCE * len(spans) and self._downstream(spans[-1], ref)
+
+    def _downstream(self, coverage: np.ndarray, ref: tuple[float, float]) -> bool:
+        """Whether the gas lies downstream of the source ``ref`` along the latest flow
+        direction, as a plume does: after a warm object turns round, the smoothed "upstream"
+        direction lags for seconds, its "source" is its leading end, and its body covers
+        that place as it advances (it started events in the no-release scene)."""
+        if self._last_resultant is None:
+            return True
+        ys, xs = np.nonzero(coverage)
+        if len(xs) == 0:
+            return True
+        c = COVERAGE_CELL_PX
+        centroid = ((xs.mean() + 0.5) * c - ref[0], (ys.mean() + 0.5) * c - ref[1])
+        return bool(centroid[0] * self._last_resultant[0]
+                    + centroid[1] * self._last_resultant[1] > 0.0)
+
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
         c = self.cfg
@@ -381,15 +448,22 @@ class LeakDetector:
             if len(self._candidate_sources) <= ANCHOR_FRAMES and ev.coverage is not None:
                 self._anchor_coverage = (ev.coverage if self._anchor_coverage is None
                                          else self._anchor_coverage | ev.coverage)
+        if ev.resultant is not None:
+            self._last_resultant = ev.resultant
         self._recent.append((ev.t_s, ev.frame, pos))
         horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
         while self._recent and self._recent[0][0] < ev.t_s - horizon:
             self._recent.popleft()
+        if self.current is None:
+            self._coverages.append((ev.t_s, ev.coverage))
+            while self._coverages and self._coverages[0][0] < ev.t_s - c.min_duration_s - 1.0:
+                self._coverages.popleft()
         out: list[tuple[str, LeakEvent]] = []
         if self.current is None:
             frac, first = self._fraction(ev.t_s, c.start_window_s)
             if (first is not None and frac >= c.start_fraction
-                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)):
+                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)
+                    and self._persistent(ev.t_s)):
                 start_frame = next(f for t, f, p in self._recent if t == first and p)
                 self.current = LeakEvent(next(self._ids), first, start_frame)
                 self.current.add(ev, pos)

@@ -18,10 +18,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import os
+import subprocess
 import sys
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -29,6 +32,9 @@ from appliance.config import CameraConfig, Config, SimulationConfig
 from appliance.progress import ProgressBar
 from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
+from processing.synthetic.schedule import ReleaseSchedule
+
+log = logging.getLogger("ogiflow.simsite")
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
 SCENE_VERSION = 2  # 2: time-correlated release, flux and release-rate truth (issue 13)
@@ -52,10 +58,53 @@ def cache_root(configured: Path | None) -> Path:
 def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> str:
     """Stable short hash of everything that shapes the rendered scene."""
     params = {k: v for k, v in asdict(sim).items() if k != "cache_dir"}
+    # keys added later stay out of the hash at their defaults: cached scenes stay valid
+    if params.get("scene") == "leak":
+        del params["scene"]
+    if not params.get("release_schedule"):
+        params.pop("release_schedule", None)
     params["wind_m_s"] = [round(float(w), 3) for w in wind_camera_m_s]
     params["version"] = SCENE_VERSION
     text = json.dumps(params, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+#: Voxel of the quick first scene shown while the configured one renders (first start), m.
+PREVIEW_VOXEL_M = 0.12
+#: Frames of the quick first scene's loop (2 s at 30 Hz).
+PREVIEW_FRAMES = 60
+
+
+def scene_folder(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Path:
+    """Cache folder of the scene for these parameters (rendered or not)."""
+    return cache_root(sim.cache_dir) / f"field-{scene_key(sim, wind_camera_m_s)}"
+
+
+def preview_of(sim: SimulationConfig) -> SimulationConfig | None:
+    """The quick first scene of ``sim``: the same leak on a coarser grid and a shorter loop
+    (about 20x less rendering than the default), or None when there is none to gain or it
+    would not be the same experiment (a release schedule needs its whole loop; the
+    no-release scene has no fluid to simulate and renders about 5x faster anyway)."""
+    from dataclasses import replace
+
+    if sim.scene != "leak" or sim.release_schedule:
+        return None
+    if sim.voxel_m >= PREVIEW_VOXEL_M and sim.frames <= PREVIEW_FRAMES:
+        return None
+    return replace(sim, voxel_m=max(sim.voxel_m, PREVIEW_VOXEL_M),
+                   frames=min(sim.frames, PREVIEW_FRAMES))
+
+
+def render_in_background(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
+                         ) -> subprocess.Popen[bytes]:
+    """Render (and cache) the scene in a separate, lowest-priority process: the running
+    appliance keeps its CPU, the next start finds the scene in the cache."""
+    args = {"sim": {k: (None if v is None else str(v) if isinstance(v, Path) else v)
+                    for k, v in asdict(sim).items()},
+            "wind": list(wind_camera_m_s)}
+    return subprocess.Popen(
+        [sys.executable, "-m", "appliance.runtime.simsite", json.dumps(args)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float],
@@ -72,21 +121,13 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
         Do not draw the progress bar on stderr.
     """
     from processing.synthetic import write_sequence
-    from processing.synthetic.sequences import generate_sequence, preset_field
+    from processing.synthetic.sequences import generate_sequence
 
     root = cache_root(sim.cache_dir)
-    folder = root / f"field-{scene_key(sim, wind_camera_m_s)}"
+    folder = scene_folder(sim, wind_camera_m_s)
     if (folder / "meta.json").is_file():
         return folder
-    config = preset_field(
-        n_frames=sim.frames,
-        wind_m_s=tuple(float(w) for w in wind_camera_m_s),
-        b_m=sim.baseline_m,
-        distance_m=sim.distance_m,
-        release_rate_g_s=sim.release_rate_g_s,
-        seed=sim.seed,
-        voxel_m=sim.voxel_m,
-    )
+    config = scene_config(sim, wind_camera_m_s)
     if not quiet:
         sys.stderr.write(f"ogiflow: rendering the simulated gas scene once into {folder} "
                          "(cached for later runs)\n")
@@ -94,6 +135,36 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     progress = None if quiet else ProgressBar("rendering simulated scene", unit="frames")
     write_sequence(folder, config.meta(), generate_sequence(config, progress))
     return folder
+
+
+def scene_config(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Any:
+    """The synthetic sequence (``SequenceConfig``) of the configured scene.
+
+    ``leak``: the ``field`` preset, its release switched by ``release_schedule`` whose period
+    is the loop. ``no_release``: the ``no_release`` preset with the walker's to-and-fro and
+    the background drift both lasting one loop, so the looped scene has no jump (the drift's
+    steepest slope stays that of the preset).
+    """
+    from dataclasses import replace
+
+    from processing.synthetic.presets import (
+        FIELD_FRAME_RATE_HZ,
+        preset_field,
+        preset_no_release,
+    )
+    from processing.synthetic.schedule import ReleaseSchedule
+
+    common = {"n_frames": sim.frames, "wind_m_s": tuple(float(w) for w in wind_camera_m_s),
+              "b_m": sim.baseline_m, "distance_m": sim.distance_m, "seed": sim.seed,
+              "voxel_m": sim.voxel_m}
+    loop_s = sim.frames / FIELD_FRAME_RATE_HZ
+    if sim.scene == "no_release":
+        return preset_no_release(walker_period_s=loop_s, drift_period_s=loop_s, **common)
+    config = preset_field(release_rate_g_s=sim.release_rate_g_s, **common)
+    if sim.release_schedule:
+        config = replace(config, release_schedule=ReleaseSchedule.from_lists(
+            sim.release_schedule, loop_s))
+    return config
 
 
 class SceneTruth:
@@ -112,18 +183,31 @@ class SceneTruth:
         self.n_frames = int(meta["n_frames"])
         self.camera = dict(meta["camera"])
         self.wind_m_s = tuple(float(w) for w in meta.get("wind_m_s", (0.0, 0.0, 0.0)))
+        self.frame_interval_s = float(meta["frame_interval_s"])
+        self.schedule = ReleaseSchedule.from_json(meta.get("release_schedule"))
+        self._rate_g_s = float(meta.get("release_rate_g_s", 0.0))
         frames = [read_frame(folder, i, meta) for i in range(self.n_frames)]
         self._means: list[np.ndarray | None] = []
         for i in range(self.n_frames - 1):
             v, mask = triplet_reference(frames[i], frames[i + 1])
             self._means.append(v[mask].astype(np.float64).mean(axis=0) if mask.any() else None)
         self._means.append(None)  # frame n-1 starts a triple that wraps
-        # The true release of every frame (scenes since issue 13), else the nominal one.
-        nominal = float(meta.get("release_rate_g_s", 0.0))
-        self.release_g_s = [nominal if f.release_rate_g_s is None else f.release_rate_g_s
-                            for f in frames]
+        # The true release of every frame (scenes since issue 13: it follows the schedule and
+        # the fluctuation exactly), else the nominal one switched by the schedule.
+        self.release_g_s = [self._nominal_g_s(i) if f.release_rate_g_s is None
+                            else f.release_rate_g_s for i, f in enumerate(frames)]
         #: Mean true release rate over the loop, g/s (what the measured rate should reach).
         self.mean_release_g_s = float(np.mean(self.release_g_s))
+
+    def _nominal_g_s(self, k: int) -> float:
+        t = k * self.frame_interval_s
+        return self._rate_g_s * (1.0 if self.schedule is None else
+                                 self.schedule.rate_factor(t))
+
+    def release_rate_g_s(self, k: int) -> float:
+        """True release rate at scene frame ``k`` (looped), g/s: 0 while a scheduled
+        release is off (gas released before may still be in view)."""
+        return self.release_g_s[int(k) % self.n_frames]
 
     def mean_velocity(self, k0: int) -> np.ndarray | None:
         i = int(k0) % self.n_frames
@@ -153,6 +237,7 @@ class SimulatedSite:
         self.wind_camera_m_s = self._scene_wind(rotation)
         self.folder: Path | None = None
         self.truth: SceneTruth | None = None
+        self.background: subprocess.Popen[bytes] | None = None
 
     @staticmethod
     def renders_scene(cfg: Config) -> bool:
@@ -169,21 +254,50 @@ class SimulatedSite:
         return (float(v[0]), float(v[1]), float(v[2]))
 
     def prepare(self) -> None:
-        """Render (once; cached) the scene and load its ground truth, when needed."""
-        if self.renders_scene(self.cfg):
-            self.folder = ensure_scene(self.cfg.simulation, self.wind_camera_m_s)
-            self.truth = SceneTruth(self.folder)
+        """Render (once; cached) the scene and load its ground truth, when needed.
+
+        On the first start (nothing cached) a leak scene without a schedule is first
+        rendered as its quick preview (:func:`preview_of`, about 20x less work) and shown
+        for this run, with the preview's own exact ground truth, while the configured
+        scene renders in a background process for the next start.
+        """
+        if not self.renders_scene(self.cfg):
+            return
+        sim = self.cfg.simulation
+        preview = preview_of(sim)
+        if (preview is not None
+                and not (scene_folder(sim, self.wind_camera_m_s) / "meta.json").is_file()):
+            log.warning("first start: showing a coarser %d-frame preview of the simulated "
+                        "scene (%.2f m voxels) while the configured one renders in the "
+                        "background for the next start", preview.frames, preview.voxel_m)
+            self.folder = ensure_scene(preview, self.wind_camera_m_s)
+            self.background = render_in_background(sim, self.wind_camera_m_s)
+        else:
+            self.folder = ensure_scene(sim, self.wind_camera_m_s)
+        self.truth = SceneTruth(self.folder)
+
+    def close(self) -> None:
+        """Stop a background render still running (the next start renders again)."""
+        if self.background is not None and self.background.poll() is None:
+            self.background.terminate()
+            try:
+                self.background.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.background.kill()
+                self.background.wait()
+        self.background = None
 
     def chain_defaults(self, camera_constant_px: float, baseline_m: float) -> dict[str, object]:
         """Chain parameters the rendered scene needs (the config may override them).
 
-        The synthetic scene has no jitter and a featureless background (the paper's ideal
+        The leak scene has no jitter and a featureless background (the paper's ideal
         conditions): registration could only lock onto the gas. The minimum disparity d0 is
         that of twice the plume distance.
         """
         if self.folder is None:
             return {}
-        return {"register": False,
+        # the no-release scene's plant wall is textured and jittered: register on it
+        return {"register": self.cfg.simulation.scene == "no_release",
                 "d0": camera_constant_px * baseline_m / (2.0 * self.cfg.simulation.distance_m)}
 
     def camera_options(self, side: str, cam: CameraConfig) -> dict[str, object]:
@@ -219,3 +333,12 @@ class SimulatedSite:
         if frame_id2 - frame_id0 != 2:
             return None
         return self.truth.mean_velocity(frame_id0)
+
+
+if __name__ == "__main__":  # render_in_background's child process
+    os.nice(19)
+    _args = json.loads(sys.argv[1])
+    _sim = dict(_args["sim"])
+    if _sim.get("cache_dir") is not None:
+        _sim["cache_dir"] = Path(_sim["cache_dir"])
+    ensure_scene(SimulationConfig(**_sim), tuple(_args["wind"]), quiet=True)

@@ -19,6 +19,7 @@ from processing.calibration.radiometric import CharacteristicCurve
 from processing.synthetic.fluid import FluidParams
 from processing.synthetic.imaging import Background, CountsModel, MovingObject, Radiometry
 from processing.synthetic.render import StereoCamera
+from processing.synthetic.schedule import ReleaseSchedule
 from processing.synthetic.storage import FORMAT
 
 #: Gain mismatch of the right camera that ``radiometric_mismatch=True`` stands for.
@@ -99,6 +100,8 @@ class SequenceConfig:
         :mod:`processing.synthetic.imaging`).
     necl_ppm_m : float
         Detection limit for the ground-truth gas mask, ppm*m.
+    release_schedule : ReleaseSchedule or None
+        When the sources release (:mod:`processing.synthetic.schedule`); None = always.
     """
 
     name: str
@@ -116,6 +119,7 @@ class SequenceConfig:
     counts_right: CountsModel = field(default_factory=CountsModel)
     options: RenderOptions = field(default_factory=RenderOptions)
     necl_ppm_m: float = 100.0
+    release_schedule: ReleaseSchedule | None = None
 
     @property
     def frame_interval_s(self) -> float:
@@ -132,6 +136,8 @@ class SequenceConfig:
             raise ValueError("n_frames and substeps must be >= 1, spinup_steps >= 0")
         if not self.spinup_dt_s > 0:
             raise ValueError("spinup_dt_s must be > 0")
+        if self.release_schedule is not None:
+            self.release_schedule.validate()
         if self.volume_origin_m[2] <= 0:
             raise ValueError("the volume must lie in front of the cameras (origin Z > 0)")
 
@@ -178,6 +184,8 @@ class SequenceConfig:
             },
             "necl_ppm_m": self.necl_ppm_m,
             "release_rate_g_s": float(sum(s.release_rate_g_s for s in fl.sources)),
+            "release_schedule": (None if self.release_schedule is None
+                                 else self.release_schedule.to_json()),
             "wind_m_s": [float(x) for x in fl.wind_m_s],
             "simulation": {
                 "method": "stable fluids (Stam 1999), MAC grid, exact DST/DCT projection",

@@ -487,6 +487,9 @@ class FluidSimulation:
         #: Gas mass released since the start (spin-up included), kg: the ground truth of
         #: the release rate over any interval is the difference of two readings.
         self.released_kg = 0.0
+        #: False while a scheduled release is off (processing.synthetic.schedule): the
+        #: sources then release no gas and force no jet; gas already out drifts on.
+        self.release_on = True
 
     @property
     def wind_m_s(self) -> np.ndarray:
@@ -503,6 +506,8 @@ class FluidSimulation:
         self._wind = wind
 
     def _apply_sources(self, dt: float) -> None:
+        if not self.release_on:
+            return
         st, p = self.state, self.params
         h3 = p.voxel_m**3
         for n, (src, cells, faces, halo) in enumerate(self._src):

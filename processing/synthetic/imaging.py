@@ -67,13 +67,30 @@ class Radiometry:
 
 @dataclass(frozen=True)
 class MovingObject:
-    """A warm/cold disk in a plane of constant Z behind the gas, moving in X (optional)."""
+    """A warm/cold disk in a plane of constant Z behind the gas, moving in X (optional).
+
+    ``center_m`` (m, in the plane at ``z_m``) is its centre at t = 0. With ``back_forth_s``
+    = 0 it moves on a straight line at ``velocity_m_s``; with ``back_forth_s`` > 0 it walks
+    at that velocity for half the period and back for the other half (a worker or a vehicle
+    going to and fro), so a scene looped over a multiple of the period has no jump.
+    """
 
     z_m: float = 4.0
     radius_m: float = 0.25
     center_m: tuple[float, float] = (-0.6, 0.0)
     velocity_m_s: tuple[float, float] = (1.0, 0.0)
     t_k: float = 310.0
+    back_forth_s: float = 0.0
+
+    def center_at(self, t_s: float) -> tuple[float, float]:
+        """Centre (X, Y) of the disk at time ``t_s``, m."""
+        travel = float(t_s)
+        if self.back_forth_s > 0:
+            half = self.back_forth_s / 2.0
+            phase = float(t_s) % self.back_forth_s
+            travel = phase if phase <= half else self.back_forth_s - phase
+        return (self.center_m[0] + self.velocity_m_s[0] * travel,
+                self.center_m[1] + self.velocity_m_s[1] * travel)
 
 
 @dataclass(frozen=True)
@@ -92,6 +109,10 @@ class Background:
         Typical temperature excursion of the wall's equipment from ``t_bg_k``, K.
     sky_horizon_k, sky_gradient_k_per_rad : float
         Sky temperature at the optical axis and its fall per radian of elevation.
+    drift_k, drift_period_s : float
+        Slow drift of the whole background's temperature (sun, clouds, the day):
+        ``drift_k * sin(2 pi t / drift_period_s)`` K added at time t; 0 = none. A scene
+        looped over a multiple of the period has no jump.
     """
 
     kind: str = "uniform"
@@ -100,6 +121,14 @@ class Background:
     contrast_k: float = 3.0
     sky_horizon_k: float = 265.0
     sky_gradient_k_per_rad: float = 40.0
+    drift_k: float = 0.0
+    drift_period_s: float = 600.0
+
+    def drift_at(self, t_s: float) -> float:
+        """Temperature offset of the background at time ``t_s``, K."""
+        if self.drift_k == 0.0:
+            return 0.0
+        return float(self.drift_k * np.sin(2.0 * np.pi * t_s / self.drift_period_s))
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad parameter."""
@@ -108,6 +137,8 @@ class Background:
                              f"got {self.kind!r}")
         if not self.depth_m > 0:
             raise ValueError(f"background depth_m must be > 0, got {self.depth_m}")
+        if not self.drift_period_s > 0:
+            raise ValueError(f"background drift_period_s must be > 0, got {self.drift_period_s}")
 
 
 def band_radiance(t_k: float, band_um: tuple[float, float] = (3.2, 3.4)) -> float:
@@ -208,23 +239,25 @@ def background_radiance(
     ``camera_x_m``: the scene's background and the moving object's black body where a ray
     hits it. ``camera`` is unused (kept for the call signature of the renderer)."""
     bg_kind = "uniform" if background is None else background.kind
+    drift = 0.0 if background is None else background.drift_at(t_s)
     if bg_kind == "uniform":
-        bg = np.full(dirs.shape[:2], band_radiance(radiometry.t_bg_k, radiometry.band_um))
+        bg = np.full(dirs.shape[:2],
+                     band_radiance(radiometry.t_bg_k + drift, radiometry.band_um))
     elif bg_kind == "plant":
         assert background is not None
         z = background.depth_m
         temp = plant_wall_temperature(camera_x_m + z * dirs[..., 0], z * dirs[..., 1],
                                       radiometry.t_bg_k, background)
-        bg = temperature_radiance(temp, radiometry.band_um)
+        bg = temperature_radiance(temp + drift, radiometry.band_um)
     else:
         assert background is not None
-        bg = temperature_radiance(sky_temperature(dirs, background), radiometry.band_um)
+        bg = temperature_radiance(sky_temperature(dirs, background) + drift,
+                                  radiometry.band_um)
     if moving_object is not None:
         mo = moving_object
         x = camera_x_m + mo.z_m * dirs[..., 0]
         y = mo.z_m * dirs[..., 1]
-        cxo = mo.center_m[0] + mo.velocity_m_s[0] * t_s
-        cyo = mo.center_m[1] + mo.velocity_m_s[1] * t_s
+        cxo, cyo = mo.center_at(t_s)
         # a soft rim (~1.5 cm) like every other edge of the scene: optics blur
         r = np.sqrt((x - cxo) ** 2 + (y - cyo) ** 2)
         inside = 0.5 * (1 + np.tanh((mo.radius_m - r) / (0.0025 * mo.z_m)))

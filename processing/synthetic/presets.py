@@ -16,6 +16,8 @@ release (0.7 s, issue 13) |V*avg| is 2.73, 2.45, 2.92 m/s, sigma 1.07, 1.04, 1.0
 7766, 6476 px (the release over a 11 ms sequence is one draw of the slow fluctuation).
 ``field`` imitates the appliance's cameras: 30 Hz frames (simulation sub-steps inside), a plume
 about 5.5 m away on 3 cm voxels, a configurable baseline and the anemometer's wind.
+``no_release`` is the same site with no gas but noise, jitter, a walking warm object and a
+drifting background (false-alarm measurements).
 """
 
 from __future__ import annotations
@@ -26,14 +28,17 @@ from typing import Any
 
 import numpy as np
 
-from processing.synthetic.config import SequenceConfig
+from processing.synthetic.config import RenderOptions, SequenceConfig
 from processing.synthetic.fluid import FluidParams, GasSource
+from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.render import StereoCamera
 
 #: The presets that ``ogiflow simulate`` writes by default.
 TABLE2_PRESETS: tuple[str, ...] = ("table2_1", "table2_2", "table2_3")
 
 _TABLE2_EXTENT_M = 0.4  # 100 voxels of 4 mm
+#: Frame rate of the ``field`` and ``no_release`` scenes (the appliance's cameras), Hz.
+FIELD_FRAME_RATE_HZ = 30.0
 
 
 def _table2(
@@ -118,7 +123,7 @@ def preset_field(
                     turbulence=0.5, release_fluctuation=0.4)
     # two steps per frame keep the CFL number near 1 at 3 cm and 3 m/s (semi-Lagrangian is
     # stable beyond, only more diffusive)
-    fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=1.0 / 60.0,
+    fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=0.5 / FIELD_FRAME_RATE_HZ,
                         wind_m_s=tuple(float(v) for v in w), boundary="open",
                         viscosity_m2_s=0.0, diffusivity_m2_s=0.0, sources=(src,))
     cfg = SequenceConfig(name="field", fluid=fluid, volume_origin_m=origin,
@@ -127,11 +132,51 @@ def preset_field(
     return replace(cfg, **overrides) if overrides else cfg
 
 
+#: Largest rate of the no-release scene's background drift, K/s (a sunlit wall warming
+#: 1.2 K a minute), whatever the drift's period.
+NO_RELEASE_DRIFT_K_PER_S = 0.02
+#: Temporal noise (NETD, K) and jitter (px, standard deviation) of the no-release scene.
+NO_RELEASE_NOISE_K = 0.03
+NO_RELEASE_JITTER_PX = 0.3
+
+
+def preset_no_release(walker_period_s: float = 20.0, drift_period_s: float = 600.0,
+                      **field: Any) -> SequenceConfig:
+    """The field scene with no gas and what a site shows instead: the false-alarm scene.
+
+    ``field`` are the arguments of :func:`preset_field` (n_frames, wind, baseline,
+    distance, seed, voxel, overrides). Its cameras in front of a plant wall (textured,
+    12 m), with temporal noise (NETD 0.03 K), camera jitter (0.3 px), a warm object (a
+    person, 0.3 m, 310 K) walking 3 m to and fro at the plume's distance every
+    ``walker_period_s``, and the background's temperature drifting as a sine of
+    ``drift_period_s`` whose steepest slope is :data:`NO_RELEASE_DRIFT_K_PER_S`. No source:
+    the fluid is not simulated (nothing moves in it), so frames cost only their rendering.
+    Loop such a scene over a multiple of both periods and it has no jump.
+    """
+    cfg = preset_field(**field)
+    b_m = cfg.camera.b_m
+    distance_m = cfg.volume_origin_m[2] + 0.5 * cfg.fluid.shape[0] * cfg.fluid.voxel_m
+    seed = cfg.seed
+    span_m = 3.0
+    walker = MovingObject(z_m=distance_m, radius_m=0.3, center_m=(b_m / 2 - span_m / 2, 0.2),
+                          velocity_m_s=(2.0 * span_m / walker_period_s, 0.0), t_k=310.0,
+                          back_forth_s=walker_period_s)
+    drift_k = NO_RELEASE_DRIFT_K_PER_S * drift_period_s / (2.0 * np.pi)
+    cfg = replace(
+        cfg, name="no_release", fluid=replace(cfg.fluid, sources=()), spinup_steps=0,
+        background=Background(kind="plant", seed=seed, drift_k=drift_k,
+                              drift_period_s=drift_period_s),
+        options=RenderOptions(noise_netd_k=NO_RELEASE_NOISE_K, jitter_px=NO_RELEASE_JITTER_PX,
+                              moving_object=walker))
+    return cfg
+
+
 PRESETS: dict[str, Callable[..., SequenceConfig]] = {
     "table2_1": preset_table2_1,
     "table2_2": preset_table2_2,
     "table2_3": preset_table2_3,
     "field": preset_field,
+    "no_release": preset_no_release,
 }
 
 

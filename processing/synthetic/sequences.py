@@ -62,14 +62,40 @@ class SyntheticStereoScene:
             self.spin_up(config.spinup_steps, config.spinup_dt_s)
 
     def spin_up(self, steps: int, dt_s: float) -> None:
-        """Advance the fluid without recording (step ``dt_s``)."""
+        """Advance the fluid without recording (step ``dt_s``).
+
+        The spin-up is the end of the previous cycle of a release schedule (its steps at
+        negative times, taken modulo the period), so a looped scheduled scene starts from
+        the gas that the end of its own cycle leaves.
+        """
         rec = self.sim.params
         self.sim.params = replace(rec, dt_s=dt_s)
         try:
-            for _ in range(steps):
-                self.sim.step()
+            for k in range(steps):
+                self._step_at(-(steps - k) * dt_s)
         finally:
             self.sim.params = rec
+
+    def _step_at(self, t_s: float) -> None:
+        """One fluid step starting at scene time ``t_s`` (s; 0 = first frame), with the
+        release switched by the schedule. A state without sources, gas or any velocity but
+        the uniform wind is steady: no step is computed (the no-release scene)."""
+        if not self.config.fluid.sources and self._steady():
+            return
+        schedule = self.config.release_schedule
+        self.sim.release_on = schedule is None or schedule.is_on(t_s)
+        self.sim.step()
+
+    def _steady(self) -> bool:
+        st, wind = self.sim.state, self.sim.wind_m_s
+        return bool(not st.c.any() and np.all(st.u == wind[0]) and np.all(st.v == wind[1])
+                    and np.all(st.w == wind[2]))
+
+    def release_rate_g_s(self, t_s: float) -> float:
+        """The true release rate at scene time ``t_s`` (mean over the puffing), g/s."""
+        rate = float(sum(s.release_rate_g_s for s in self.config.fluid.sources))
+        schedule = self.config.release_schedule
+        return rate if schedule is None else rate * schedule.rate_factor(t_s)
 
     def set_wind(self, wind_m_s: np.ndarray | tuple[float, float, float]) -> None:
         """Change the ambient wind (left camera frame, m/s) from the next step on."""
@@ -87,15 +113,19 @@ class SyntheticStereoScene:
         # (the state's arrays are replaced, not modified, by a step, so c_ppm stays this frame's).
         vel = np.zeros((3, *st.c.shape))
         released_kg = self.sim.released_kg
-        for _ in range(cfg.substeps):
-            self.sim.step()
+        for j in range(cfg.substeps):
+            self._step_at(t_s + j * cfg.fluid.dt_s)
             vel += self.sim.state.cell_velocity()
         vel /= cfg.substeps
         release_g_s = (self.sim.released_kg - released_kg) * 1e3 / cfg.frame_interval_s
-        moment = np.empty((*self.dirs.shape[:2], 3))
-        col_l, zsum, vsum = column_integrals(c_ppm, self.volume, self.dirs, 0.0, velocity=vel,
-                                             moment_out=moment)
-        col_r, _, _ = column_integrals(c_ppm, self.volume, self.dirs, self.camera.b_m)
+        moment = np.zeros((*self.dirs.shape[:2], 3))
+        if c_ppm.any():
+            col_l, zsum, vsum = column_integrals(c_ppm, self.volume, self.dirs, 0.0,
+                                                 velocity=vel, moment_out=moment)
+            col_r, _, _ = column_integrals(c_ppm, self.volume, self.dirs, self.camera.b_m)
+        else:  # no gas anywhere: every line integral is exactly zero (no need to march)
+            col_l, zsum, col_r = (np.zeros(self.dirs.shape[:2]) for _ in range(3))
+            vsum = np.zeros((*self.dirs.shape[:2], 3))
         gt = ground_truth(col_l, zsum, vsum, self.dirs, cfg.necl_ppm_m)
         # The flux truth in kg/s: the moment was integrated over c in ppm.
         gt.flux_moment_kg_s = (moment / to_ppm).astype(np.float32)
