@@ -27,7 +27,7 @@ def blueprint() -> Any:
                                                             "+ operator/wind"],
                                name="emission rate (kg/h) and wind (m/s)"),
             rrb.TextDocumentView(origin="operator/events", name="leak events"),
-            row_shares=[2, 2, 2],
+            row_shares=[3, 2, 2],  # the status first: its last line is health
         ),
         column_shares=[3, 2], name="operator",
     )
