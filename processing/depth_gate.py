@@ -47,6 +47,9 @@ ACTIVITY_FLOOR = 0.05
 #: px, and the out-of-band votes a region needs to be an object (fewer are SGBM outliers).
 VOTE_RADIUS = 7
 MIN_VOTES = 12
+#: Narrower images keep SGBM at full resolution: halved, SGBM's matching blocks cover too
+#: much of a small picture (a 64 x 48 test recording lost its gas to the gate).
+MIN_WIDTH_HALF_SGBM = 160
 #: An object's region needs this many times more out-of-band than in-band votes.
 MAJORITY = 3.0
 
@@ -97,7 +100,8 @@ def out_of_band_motion(
     dilate_px : int
         Radius by which the masks grow: the largest image motion within a triple, px.
     sgbm_downsample : int
-        1 or 2: semi-global matching on images reduced by this factor (Gaussian pyramid),
+        1 or 2: semi-global matching on images reduced by this factor (Gaussian pyramid;
+        images narrower than ``MIN_WIDTH_HALF_SGBM`` px stay at full resolution),
         its disparities scaled back up. SGBM's cost is pixels x disparities, so 2 makes it
         8x cheaper (it was 10 of the gate's 12 ms); the band's tolerance (3 px) is larger
         than the 2 px steps of the coarser disparity, and the votes, regions and masks stay
@@ -160,7 +164,7 @@ def _coarse_sgbm(left: np.ndarray, right: np.ndarray, n_disp: int, factor: int
                  ) -> tuple[np.ndarray, np.ndarray]:
     """SGBM disparity (px at full resolution) and validity over [0, n_disp), computed on
     images reduced by ``factor`` (1 or 2) and brought back to (H, W)."""
-    if factor == 1:
+    if factor == 1 or left.shape[1] < MIN_WIDTH_HALF_SGBM:
         return sgbm_disparity(left, right, min_disparity=0, num_disparities=n_disp)
     if factor != 2:
         raise ValueError(f"sgbm_downsample must be 1 or 2, got {factor!r}")

@@ -17,10 +17,10 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
   uniform middle not even then), and the gas must lie downstream of it along the latest
   flow direction;
 - *a source in view*: before an event has started, a frame whose upstream end touches the
-  image border (within :data:`BORDER_PX`; its source within twice that) counts only when
-  its gas covers the candidate's
-  source: gas entering across the edge cannot be located, and a warm object walking slowly
-  into the view keeps its trailing end pinned to the border for seconds;
+  image border (within :data:`appliance.runtime.evidence.BORDER_PX`; its source within
+  twice that) counts only when its gas covers the candidate's source: gas entering across
+  the edge cannot be located, and a warm object walking slowly into the view keeps its
+  trailing end pinned to the border for seconds;
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
   ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
   it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
@@ -37,7 +37,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-Polygon = Sequence[tuple[float, float]]
+from appliance.runtime.evidence import (
+    COVERAGE_CELL_PX,
+    EvidenceStream,
+    FrameEvidence,
+    Polygon,
+    covers,
+    evidence_from_fields,
+    zone_mask,
+)
+
+__all__ = ["EventConfig", "EvidenceStream", "FrameEvidence", "LeakDetector", "LeakEvent",
+           "Polygon", "evidence_from_fields", "zone_mask"]
 
 
 @dataclass(frozen=True)
@@ -75,196 +86,12 @@ class EventConfig:
     ignore_zones: tuple[tuple[tuple[float, float], ...], ...] = ()
 
 
-def zone_mask(shape: tuple[int, int], watch: Sequence[Polygon] = (),
-              ignore: Sequence[Polygon] = ()) -> np.ndarray:
-    """Pixels the event logic looks at: inside a watch zone (all when none) and no ignore zone.
-
-    Returns
-    -------
-    ndarray, shape ``shape``, bool
-    """
-    import cv2
-
-    h, w = shape
-    if watch:
-        m = np.zeros((h, w), np.uint8)
-        cv2.fillPoly(m, [np.round(np.asarray(p, np.float64)).astype(np.int32) for p in watch], 1)
-    else:
-        m = np.ones((h, w), np.uint8)
-    if ignore:
-        cv2.fillPoly(m, [np.round(np.asarray(p, np.float64)).astype(np.int32) for p in ignore],
-                     0)
-    return m.astype(bool)
-
-
-@dataclass(frozen=True)
-class FrameEvidence:
-    """What one processed frame says about a leak.
-
-    Attributes
-    ----------
-    t_s : float
-        Frame time, s (any monotonic origin).
-    frame : int
-        Frame or pair index (reports).
-    gas_pixels : int
-        Gas pixels inside the zones.
-    coherence : float
-        Mean resultant length of the flow directions over those pixels (0-1).
-    source_xy : (float, float) or None
-        Upstream end of the plume, px.
-    rate_g_s : float or None
-        Emission rate of the frame, when known.
-    velocity_m_s : (float, float, float) or None
-        Mean 3D gas velocity.
-    wind_m_s : (float, float, float) or None
-        Anemometer wind in the camera frame.
-    source_xyz_m : (float, float, float) or None
-        3D position of the source, m (camera frame).
-    resultant : (float, float) or None
-        Mean unit flow direction of the gas pixels (length = coherence).
-    on_border : bool
-        Some of the most upstream gas pixels lie within :data:`BORDER_PX` of the image's
-        edge (the gas enters the view there), or the source within twice that.
-    coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
-        Which cells of the image hold gas (to ask whether a source is still under gas).
-    """
-
-    t_s: float
-    frame: int
-    gas_pixels: int
-    coherence: float
-    source_xy: tuple[float, float] | None = None
-    rate_g_s: float | None = None
-    velocity_m_s: tuple[float, float, float] | None = None
-    wind_m_s: tuple[float, float, float] | None = None
-    source_xyz_m: tuple[float, float, float] | None = None
-    resultant: tuple[float, float] | None = None
-    on_border: bool = False
-    coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
-
-    def covers(self, xy: tuple[float, float]) -> bool:
-        """Whether this frame's gas lies within one coverage cell of ``xy`` (px)."""
-        return covers(self.coverage, xy)
-
-
-def covers(coverage: np.ndarray | None, xy: tuple[float, float], cells: int = 1) -> bool:
-    """Whether a coverage grid (:attr:`FrameEvidence.coverage`) holds gas within ``cells``
-    cells (of ``COVERAGE_CELL_PX``) of the point ``xy`` (px)."""
-    if coverage is None:
-        return False
-    i, j = int(xy[1]) // COVERAGE_CELL_PX, int(xy[0]) // COVERAGE_CELL_PX
-    h, w = coverage.shape
-    return bool(coverage[max(i - cells, 0):min(i + cells + 1, h),
-                         max(j - cells, 0):min(j + cells + 1, w)].any())
-
-
 #: Positive frames whose sources anchor a candidate event (start rule, LeakDetector._stayed).
 ANCHOR_FRAMES = 5
-
-#: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
-COVERAGE_CELL_PX = 8
-
-#: Gas this close to the image's edge among a frame's most upstream pixels means it enters
-#: the view there, px (start rule).
-BORDER_PX = 8
 
 #: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
 #: source (one coverage cell around it) held gas, for the event to start.
 PERSISTENCE = 0.8
-
-
-def _coverage(mask: np.ndarray) -> np.ndarray:
-    h, w = mask.shape
-    c = COVERAGE_CELL_PX
-    padded = np.zeros((-(-h // c) * c, -(-w // c) * c), bool)
-    padded[:h, :w] = mask
-    return padded.reshape(padded.shape[0] // c, c, padded.shape[1] // c, c).any(axis=(1, 3))
-
-
-def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
-                         zones: np.ndarray | None = None, *,
-                         direction: tuple[float, float] | None = None,
-                         **extra: object) -> FrameEvidence:
-    """Evidence of one frame from its gas mask (H, W) and image-plane flow (H, W, 2).
-
-    The source is the mean position of the 2 % most upstream gas pixels along ``direction``
-    (unit vector in the image, px; default: the frame's mean flow direction); ``extra``
-    fills the optional fields of :class:`FrameEvidence`.
-    """
-    mask = np.asarray(gas_mask, bool)
-    if zones is not None:
-        mask = mask & zones
-    ys, xs = np.nonzero(mask)
-    if len(xs) == 0:
-        return FrameEvidence(t_s, frame, 0, 0.0, **extra)  # type: ignore[arg-type]
-    f = np.asarray(flow, np.float64)[ys, xs]
-    mag = np.hypot(f[:, 0], f[:, 1])
-    moving = mag > 1e-3
-    if not moving.any():
-        return FrameEvidence(t_s, frame, len(xs), 0.0, **extra)  # type: ignore[arg-type]
-    unit = f[moving] / mag[moving, None]
-    resultant = unit.mean(axis=0)
-    coherence = float(np.hypot(*resultant))
-    d = (np.asarray(direction, np.float64) if direction is not None
-         else resultant / max(coherence, 1e-12))
-    along = xs * d[0] + ys * d[1]
-    up = along <= np.percentile(along, 2.0)
-    source = (float(xs[up].mean()), float(ys[up].mean()))
-    h, w = mask.shape
-    # any of the most upstream pixels at the edge, not only their mean (a warm object walking
-    # into the view has its upstream end on the edge, its mean 15-20 px inside); and a
-    # source within two border widths (a strip along the edge where registration resamples)
-    ux, uy = xs[up], ys[up]
-    on_border = bool(min(ux.min(), uy.min(), w - 1 - ux.max(), h - 1 - uy.max()) < BORDER_PX
-                     or min(source[0], source[1], w - 1 - source[0], h - 1 - source[1])
-                     < 2 * BORDER_PX)
-    return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
-                         resultant=(float(resultant[0]), float(resultant[1])),
-                         on_border=on_border, coverage=_coverage(mask), **extra)
-
-
-class EvidenceStream:
-    """Per-frame evidence of one camera stream, with the plume's direction smoothed in time.
-
-    The upstream end of a bent or billowing plume depends strongly on the direction it is
-    measured along: with each frame's own mean flow direction, the source of a real plume
-    jumped between two ends of its base (50 px apart in the simulated site), so the
-    fixed-source rule rejected about half of its frames and an event started or not by
-    chance. Along the direction averaged over ``tau_s`` the source stays put, while a moving
-    object's trailing end still travels with it.
-
-    Parameters
-    ----------
-    zones : ndarray (H, W) of bool, optional
-        From :func:`zone_mask`.
-    tau_s : float
-        Time constant of the exponential average of the flow resultant, s.
-    """
-
-    def __init__(self, zones: np.ndarray | None = None, tau_s: float = 3.0) -> None:
-        self.zones = zones
-        self.tau_s = tau_s
-        self._mean: np.ndarray | None = None
-        self._t: float | None = None
-
-    def __call__(self, t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
-                 **extra: object) -> FrameEvidence:
-        """Evidence of one frame (frames may arrive slightly out of order)."""
-        direction = None
-        if self._mean is not None and np.hypot(*self._mean) > 1e-6:
-            direction = tuple(self._mean / np.hypot(*self._mean))
-        ev = evidence_from_fields(t_s, frame, gas_mask, flow, self.zones,
-                                  direction=direction, **extra)  # type: ignore[arg-type]
-        if ev.resultant is not None:
-            r = np.asarray(ev.resultant)
-            if self._mean is None or self._t is None:
-                self._mean, self._t = r, t_s
-            else:
-                a = 1.0 - np.exp(-max(t_s - self._t, 0.0) / self.tau_s)
-                self._mean = self._mean + max(a, 0.02) * (r - self._mean)
-                self._t = max(self._t, t_s)
-        return ev
 
 
 @dataclass
