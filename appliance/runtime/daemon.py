@@ -477,4 +477,4 @@ def emission_setup(cfg: Config, truth: Any = None) -> EmissionSetup | None:
             t_gas = float(rad["t_gas_k"])
     return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
                                           background_frames=em.background_frames),
-                         t_gas, curve)
+                         t_gas, curve, every=em.every)

@@ -81,14 +81,16 @@ class LeakMonitor:
         monotonic clock (a step of the wall clock does not change event durations).
         """
         t_s = t_wall_ns / 1e9
-        rate = rate or FrameRate(None, (), "no emission estimate")
+        # None: the worker did not estimate this triple (emission.every); it is left out of
+        # the window rather than counted as a frame without a rate.
         with self._lock:
-            self.rate = self.window.push(t_s, rate)
+            if rate is not None:
+                self.rate = self.window.push(t_s, rate)
             self.wind = None if wind is None else tuple(float(v) for v in wind)  # type: ignore[assignment]
             self._t_wall_ns, self._frame = t_wall_ns, frame
             velocity = summary.get("mean_velocity_m_s")
             ev = self.evidence(
-                t_s, frame, gas_mask, flow, rate_g_s=rate.rate_g_s,
+                t_s, frame, gas_mask, flow, rate_g_s=None if rate is None else rate.rate_g_s,
                 velocity_m_s=tuple(velocity) if velocity else None, wind_m_s=self.wind)
             transitions = self.detector.update(ev)
         for kind, event in transitions:

@@ -89,6 +89,7 @@ class EmissionSetup:
     settings: EmissionSettings
     gas_temperature_k: float | None = None
     curve_left: CharacteristicCurve | None = None
+    every: int = 1  # a rate on every this many triples of a worker (config emission.every)
 
     def to_json(self) -> str:
         """The setup as JSON (the recording's ``emission`` metadata, so replay uses it)."""
@@ -264,6 +265,7 @@ def worker_main(
     max_lag = ring.capacity // 2 if n_workers <= 2 else None
     torn = 0
     estimator = None if emission is None else emission.estimator(geometry)
+    own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
         while not stop.is_set():
             lease = ring.take_newest(3, stride=stride, phase=phase, max_lag=max_lag)
@@ -291,7 +293,9 @@ def worker_main(
             try:
                 res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
                 pack_result(res, base, raw_left=left[0])
-                if estimator is not None and emission is not None:
+                own += 1
+                if estimator is not None and emission is not None and (
+                        own % emission.every == 0):
                     base.rate = emission_rate(estimator, left[1], res,
                                               emission.temperature_k(sonic_k))
                 elif emission is not None:
