@@ -142,6 +142,7 @@ def run_segments(
         if owner.starts_segment(k):
             state = ChainState()  # cold start at every segment border (module docstring)
             estimator = None if emission is None else emission.estimator(geometry)
+            publisher.restart_rate_window()
         if pace:
             t_first = pair.time_ns if t_first is None else t_first
             ahead = (pair.time_ns - t_first) / 1e9 - (time.monotonic() - t_start)

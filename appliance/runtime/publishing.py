@@ -246,6 +246,12 @@ class ResultPublisher:
             payload = schemas.compressed_image(png.tobytes(), wall, "camera_left", "png")
             self.recorder.record("/sceneflow/mask", schemas.COMPRESSED_IMAGE, payload, wall, t1)
 
+    def restart_rate_window(self) -> None:
+        """Forget the emission-rate window (a reprocessing segment's cold start: the window
+        of a segment then holds only its own frames, the same in a replay and in a Ray task
+        that runs the segment alone)."""
+        self.rate_window = RateWindow(self.rate_window.window_s)
+
     # ------------------------------------------------------------------ ground truth
 
     def _add_truth(self, truth: np.ndarray | None, summary: dict[str, Any]) -> None:
