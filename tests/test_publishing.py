@@ -183,3 +183,25 @@ def test_truth_comparison_over_valid_frames_with_truth() -> None:
     pub2 = _publisher(None, None, truth_for=lambda i: np.array([1.0, 0.0, 0.0]))
     pub2.publish(_result(0, velocity=(0.0, 0.0, 1.0)))
     assert pub2.truth_comparison()["direction_error_deg"] == pytest.approx(90.0)
+
+
+def test_rate_window_restarts_at_a_segment_border() -> None:
+    """Reprocessing runs a segment alone in a task; a replay runs them in turn. The emission
+    window restarts with the segment so that both write the same window fields."""
+    from processing.emission.rate import FrameRate
+
+    rec = FakeRecorder()
+    pub = _publisher(rec, None)
+    for i in range(3):
+        res = _result(i)
+        res.rate = FrameRate(2.0 + i, (2.0 + i,), "")
+        pub.publish(res)
+    pub.restart_rate_window()
+    res = _result(3)
+    res.rate = FrameRate(7.0, (7.0,), "")
+    pub.publish(res)
+    frames = [json.loads(r.payload)["emission_window_frames"]
+              for r in rec.topic("/sceneflow/summary")]
+    rates = [json.loads(r.payload)["emission_window_rate_g_s"]
+             for r in rec.topic("/sceneflow/summary")]
+    assert frames == [1, 2, 3, 1] and rates[2] == pytest.approx(3.0) and rates[3] == 7.0
