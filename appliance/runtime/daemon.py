@@ -43,7 +43,7 @@ from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.workers import EmissionSetup, WorkerResult, worker_main
+from appliance.runtime.workers import WorkerResult, emission_setup, worker_main
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -152,8 +152,7 @@ class Appliance:
         if self.site is None or self.site.truth is None or self.acquisition is None:
             return None
         (k,) = self.acquisition.frame_ids(pair_index)
-        truth = self.site.truth
-        return None if k is None else truth.release_g_s[int(k) % len(truth.release_g_s)]
+        return None if k is None else self.site.truth.release_rate_g_s(k)
 
     # ------------------------------------------------------------------ run
 
@@ -308,16 +307,9 @@ class Appliance:
         from appliance.runtime.monitor import monitor_from_config
 
         assert self.geometry is not None and self.site is not None
-        sim = self.cfg.simulation
-        true_rate = None
-        if self.site.truth is not None and sim.scene == "no_release":
-            true_rate = 0.0
-        elif self.site.truth is not None and not sim.release_schedule:
-            # a scheduled release has no single true rate (SceneTruth.release_rate_g_s
-            # gives it per scene frame): none is shown rather than a wrong one
-            true_rate = self.site.truth.mean_release_g_s
         return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
-                                   on_event=self._on_event, true_rate_g_s=true_rate)
+                                   on_event=self._on_event,
+                                   true_rate_g_s=self.site.shown_true_rate_g_s())
 
     def _on_event(self, kind: str, event: dict[str, Any]) -> None:
         """A leak event changed: record it, and keep its raw frames as a clip."""
@@ -446,35 +438,3 @@ class Appliance:
         from appliance.runtime.counters import health_counters
 
         return health_counters(self)
-
-
-def emission_setup(cfg: Config, truth: Any = None) -> EmissionSetup | None:
-    """The workers' emission settings from the ``emission`` section (None: disabled);
-    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
-    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
-    gas absorption as the gas-cell calibration, and its gas temperature."""
-    from dataclasses import replace
-
-    from processing.calibration.radiometric import CharacteristicCurve
-    from processing.emission.estimator import EmissionSettings
-    from processing.emission.gas import METHANE, load_gas
-
-    em = cfg.emission
-    if not em.enabled:
-        return None
-    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
-    curve, t_gas = None, em.gas_temperature_k
-    if truth is not None:
-        counts = truth.meta["counts_model"]["left"]
-        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
-        rad = truth.meta["radiometry"]
-        if em.gas_file is None:
-            gas = replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
-                          source="the simulated scene's")
-        if t_gas is None:
-            # The simulated anemometer's sonic temperature is not the scene's gas
-            # temperature (the renderer's plume is colder than the air around it).
-            t_gas = float(rad["t_gas_k"])
-    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
-                                          background_frames=em.background_frames),
-                         t_gas, curve, every=em.every)

@@ -300,6 +300,17 @@ class SimulatedSite:
         return {"register": self.cfg.simulation.scene == "no_release",
                 "d0": camera_constant_px * baseline_m / (2.0 * self.cfg.simulation.distance_m)}
 
+    def shown_true_rate_g_s(self) -> float | None:
+        """The true release rate shown beside the measured one (operator's status), g/s:
+        0 for the no-release scene, the loop's mean otherwise; None for real cameras and
+        for a scheduled release, which has no single true rate (the summaries carry it per
+        frame) - none is shown rather than a wrong one."""
+        if self.truth is None or self.cfg.simulation.release_schedule:
+            return None
+        if self.cfg.simulation.scene == "no_release":
+            return 0.0
+        return self.truth.mean_release_g_s
+
     def camera_options(self, side: str, cam: CameraConfig) -> dict[str, object]:
         """Options of a camera back end, with the simulated camera's site defaults."""
         options = dict(cam.options)

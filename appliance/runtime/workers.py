@@ -321,3 +321,35 @@ def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[
 
     times = tuple(t / 1e9 for t in t_mono_ns)
     return compute_scene_flow(list(left), list(right), times, geometry, params, state)
+
+
+def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
+    """The workers' emission settings from the ``emission`` section (None: disabled);
+    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
+    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
+    gas absorption as the gas-cell calibration, and its gas temperature."""
+    from dataclasses import replace
+
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.emission.estimator import EmissionSettings
+    from processing.emission.gas import METHANE, load_gas
+
+    em = cfg.emission
+    if not em.enabled:
+        return None
+    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
+    curve, t_gas = None, em.gas_temperature_k
+    if truth is not None:
+        counts = truth.meta["counts_model"]["left"]
+        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
+        rad = truth.meta["radiometry"]
+        if em.gas_file is None:
+            gas = replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                          source="the simulated scene's")
+        if t_gas is None:
+            # The simulated anemometer's sonic temperature is not the scene's gas
+            # temperature (the renderer's plume is colder than the air around it).
+            t_gas = float(rad["t_gas_k"])
+    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
+                                          background_frames=em.background_frames),
+                         t_gas, curve, every=em.every)
