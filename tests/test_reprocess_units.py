@@ -80,12 +80,16 @@ def test_replay_with_segments_restarts_cold_at_borders(recording: Path, tmp_path
     class Collect:
         def __init__(self) -> None:
             self.results: list = []
+            self.window_restarts: list[int] = []  # results before each restart
 
         def record_pair(self, index: int, pair: object) -> None:
             pass
 
         def publish(self, res: object, fields: bool) -> None:
             self.results.append(res)
+
+        def restart_rate_window(self) -> None:
+            self.window_restarts.append(len(self.results))
 
     rec = Recording.open(recording)
     one, two = Collect(), Collect()
@@ -95,6 +99,8 @@ def test_replay_with_segments_restarts_cold_at_borders(recording: Path, tmp_path
     scale = [r.diff_scale for r in one.results], [r.diff_scale for r in two.results]
     assert scale[0][:20] == scale[1][:20]  # same state before the border
     assert scale[0][20] != scale[1][20]  # a fresh normalisation scale after it
+    # ... and a fresh emission-rate window, as a Ray task running the segment alone has
+    assert one.window_restarts == [0] and two.window_restarts == [0, 20]
 
 
 def test_replay_writes_parquet_through_export(recording: Path, tmp_path: Path) -> None:
