@@ -10,10 +10,9 @@ from processing.synthetic.fluid import (
     FluidSimulation,
     FluidState,
     GasSource,
-    divergence,
     initial_state,
-    project,
 )
+from processing.synthetic.projection import divergence, project
 
 
 def _random_state(shape: tuple[int, int, int], rng: np.random.Generator) -> FluidState:
