@@ -270,7 +270,10 @@ def compute_scene_flow(
             pl, pr, scale = apply_gate(pl, pr, gate, scale)
         t = lap("depth_gate", t)
     flags.extend(preprocess_flags(pl, pr))
-    cut = scene_change(state, pl, pr)
+    # The scale this triple asks for: once, for the scene-change test and the tracker.
+    target = (state.scale.target(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
+              if state is not None and state.scale is not None else None)
+    cut = scene_change(state, target)
     if cut:
         flags.append("scene_change")
     # Decided after pre-processing: a scene change starts cold and leaves nothing to warm.
@@ -329,7 +332,7 @@ def compute_scene_flow(
     timings["total"] = (time.perf_counter() - t_start) * 1e3
 
     if state is not None:
-        _update_state(state, params, scale, pl, pr)
+        _update_state(state, params, scale, pl, pr, target)
         if cut:
             state.reset()  # the next triple starts cold too: these fields are not gas
         else:
@@ -350,19 +353,18 @@ def compute_scene_flow(
 SCENE_CHANGE_FACTOR = 3.0
 
 
-def scene_change(state: ChainState | None, pl: PreprocessedTriple,
-                 pr: PreprocessedTriple) -> bool:
+def scene_change(state: ChainState | None, target: float | None) -> bool:
     """Whether the whole picture changed at once in this triple.
 
     A flat-field shutter, a bumped camera or a jump of the scene makes both differential
     images of a triple far stronger than gas ever does. A warm start would carry that
     triple's fields into the next ones (measured: four triples after the simulated scene's
     loop jump at 4-19 m/s against 1.3 m/s true), so it starts cold and leaves nothing to
-    warm from. Needs a tracked scale (a state after its first triple).
+    warm from. Needs a tracked scale (a state after its first triple); ``target`` is the
+    scale this triple's raw differential images ask for (:meth:`DiffScaleTracker.target`).
     """
-    if state is None or state.scale is None:
+    if state is None or state.scale is None or target is None:
         return False
-    target = state.scale.target(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
     return target > SCENE_CHANGE_FACTOR * state.scale.scale
 
 
@@ -374,8 +376,9 @@ def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | 
 
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,
-                  pl: PreprocessedTriple, pr: PreprocessedTriple) -> None:
+                  pl: PreprocessedTriple, pr: PreprocessedTriple,
+                  target: float | None) -> None:
     if params.diff_scale is None:
         if state.scale is None:
             state.scale = DiffScaleTracker(scale, forgetting=params.scale_forgetting)
-        state.scale.update(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
+        state.scale.update(pl.raw0, pl.raw1, pr.raw0, pr.raw1, target=target)

@@ -99,9 +99,10 @@ class DiffScaleTracker:
         )
         return self.headroom * float(np.quantile(pooled, self.quantile))
 
-    def update(self, *diffs: np.ndarray) -> float:
-        """Pool the raw differential images of both cameras and update the scale."""
-        target = self.target(*diffs)
+    def update(self, *diffs: np.ndarray, target: float | None = None) -> float:
+        """Pool the raw differential images of both cameras and update the scale
+        (``target``: their :meth:`target`, when the caller has it already)."""
+        target = self.target(*diffs) if target is None else target
         if target > 0.0:
             self._scale = (1.0 - self.forgetting) * self._scale + self.forgetting * target
         return self._scale
