@@ -205,3 +205,27 @@ def test_rate_window_restarts_at_a_segment_border() -> None:
     rates = [json.loads(r.payload)["emission_window_rate_g_s"]
              for r in rec.topic("/sceneflow/summary")]
     assert frames == [1, 2, 3, 1] and rates[2] == pytest.approx(3.0) and rates[3] == 7.0
+
+
+def test_operator_status_shows_the_summaries_rate_window() -> None:
+    """One 30 s window: the status panel (and MQTT) report the rate the summaries carry,
+    also after a frame without an estimate (emission.every) and a segment restart."""
+    from appliance.runtime.events import EventConfig
+    from appliance.runtime.monitor import LeakMonitor
+    from processing.emission.rate import FrameRate
+
+    rec = FakeRecorder()
+    monitor = LeakMonitor(EventConfig(), (W, H))
+    pub = _publisher(rec, None, monitor=monitor)
+    for i, rate in enumerate((2.0, None, 4.0)):
+        res = _result(i)
+        res.rate = None if rate is None else FrameRate(rate, (rate,), "")
+        pub.publish(res)
+    window = json.loads(rec.topic("/sceneflow/summary")[-1].payload)
+    assert window["emission_window_rate_g_s"] == pytest.approx(3.0)
+    assert monitor.status().rate_kg_h == pytest.approx(3.0 * 3.6)
+    pub.restart_rate_window()
+    res = _result(3)
+    res.rate = FrameRate(7.0, (7.0,), "")
+    pub.publish(res)
+    assert monitor.status().rate_kg_h == pytest.approx(7.0 * 3.6)

@@ -23,7 +23,7 @@ from appliance.runtime.events import (
     LeakEvent,
     zone_mask,
 )
-from processing.emission.rate import FrameRate, RateEstimate, RateWindow
+from processing.emission.rate import FrameRate, RateEstimate
 
 log = logging.getLogger("ogiflow.monitor")
 
@@ -37,8 +37,6 @@ class LeakMonitor:
         Thresholds and zones.
     image_size : (int, int)
         (W, H) of the left image (for the zones).
-    rate_window_s : float
-        Window of the emission-rate average, s.
     on_event : callable
         ``(kind, event_dict)`` for every start/update/end (recorder, alarm sinks).
     alarm_sinks : sequence
@@ -50,7 +48,6 @@ class LeakMonitor:
     """
 
     def __init__(self, events: EventConfig, image_size: tuple[int, int], *,
-                 rate_window_s: float = 30.0,
                  on_event: Callable[[str, dict[str, Any]], None] | None = None,
                  alarm_sinks: Sequence[Any] = (), live: Any = None,
                  true_rate_g_s: float | None = None) -> None:
@@ -58,7 +55,6 @@ class LeakMonitor:
         self.detector = LeakDetector(events)
         self.zones = zone_mask((h, w), events.watch_zones, events.ignore_zones)
         self.evidence = EvidenceStream(self.zones)
-        self.window = RateWindow(rate_window_s)
         self.on_event = on_event
         self.sinks = list(alarm_sinks)
         self.live = live
@@ -74,18 +70,21 @@ class LeakMonitor:
 
     def on_result(self, t_wall_ns: int, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
                   summary: dict[str, Any], *, wind: np.ndarray | None = None,
-                  rate: FrameRate | None = None) -> None:
+                  rate: FrameRate | None = None,
+                  window: RateEstimate | None = None) -> None:
         """One published result (results thread).
 
         ``t_wall_ns`` is the daemon's wall time of the frame, a fixed offset from the
         monotonic clock (a step of the wall clock does not change event durations).
+        ``rate`` is this frame's emission estimate, ``window`` the publisher's windowed
+        average after it (the one the summaries carry: one window, not two).
         """
         t_s = t_wall_ns / 1e9
-        # None: the worker did not estimate this triple (emission.every); it is left out of
-        # the window rather than counted as a frame without a rate.
+        # None: the worker did not estimate this triple (emission.every); the last window
+        # stands until the next estimate.
         with self._lock:
-            if rate is not None:
-                self.rate = self.window.push(t_s, rate)
+            if window is not None:
+                self.rate = window
             self.wind = None if wind is None else tuple(float(v) for v in wind)  # type: ignore[assignment]
             self._t_wall_ns, self._frame = t_wall_ns, frame
             velocity = summary.get("mean_velocity_m_s")
@@ -176,5 +175,5 @@ def monitor_from_config(cfg: Any, image_size: tuple[int, int], stack: Any, *, li
                                       for f in dataclasses.fields(MqttConfig)})).start()
         stack.callback(sink.close)
         sinks.append(sink)
-    return LeakMonitor(events, image_size, rate_window_s=ev.rate_window_s, on_event=on_event,
+    return LeakMonitor(events, image_size, on_event=on_event,
                        alarm_sinks=sinks, live=live, true_rate_g_s=true_rate_g_s)

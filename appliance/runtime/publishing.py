@@ -17,7 +17,7 @@ import numpy as np
 
 from appliance.recording import schemas
 from appliance.runtime.workers import WorkerResult
-from processing.emission.rate import RateWindow
+from processing.emission.rate import RateEstimate, RateWindow
 from processing.summary import directional_angles
 
 
@@ -120,8 +120,10 @@ class ResultPublisher:
             else None,
             "skipped_pairs": int(res.skipped), "valid": bool(s.get("valid")), "flags": flags,
         }
+        window = None
         if res.rate is not None:
-            summary.update(self._emission(res, t1))
+            window = self.rate_window.push(self.wall_ns(t1) / 1e9, res.rate)
+            summary.update(self._emission(res, window))
         self.record_json("/sceneflow/summary", schemas.SCENEFLOW_SUMMARY, summary, t1)
         wind = self._wind(t1, res.pair_indices[1])
         truth = None if self.truth_for is None else self.truth_for(res.pair_indices[0])
@@ -138,14 +140,13 @@ class ResultPublisher:
             self._push_live(res, summary, wind, truth, t1)
         if self.monitor is not None and res.gas_mask is not None and res.flow is not None:
             self.monitor.on_result(summary["t_wall_ns"], res.pair_indices[1], res.gas_mask,
-                                   res.flow, summary, wind=wind, rate=res.rate)
+                                   res.flow, summary, wind=wind, rate=res.rate, window=window)
         return summary
 
-    def _emission(self, res: WorkerResult, t1: int) -> dict[str, Any]:
+    def _emission(self, res: WorkerResult, est: RateEstimate) -> dict[str, Any]:
         """The summary's emission keys: the frame's rate and the window's (g/s, kg/h)."""
         rate = res.rate
         assert rate is not None
-        est = self.rate_window.push(self.wall_ns(t1) / 1e9, rate)
         true = None if self.true_rate_for is None else self.true_rate_for(res.pair_indices[1])
         out = {
             "emission_rate_g_s": rate.rate_g_s,
