@@ -277,7 +277,7 @@ def compute_scene_flow(
     if cut:
         flags.append("scene_change")
     # Decided after pre-processing: a scene change starts cold and leaves nothing to warm.
-    warm = None if cut else warm_start(state, times, params.warm_start)
+    warm = None if cut else warm_start(state, times, params.warm_start, params.cold_every)
     if cut and state is not None:
         state.cold_starts += 1
 

@@ -256,7 +256,8 @@ def preprocess_camera(
 
         def plausible(k: int) -> tuple[float, float]:
             try:
-                shift, converged = estimate_shift_checked(imgs[k], imgs[k + 1], max_iter=20)
+                shift, converged = estimate_shift_checked(imgs[k], imgs[k + 1], max_iter=20,
+                                                          max_shift=max_shift)
             except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
                 shift, converged = (0.0, 0.0), False
             if converged and float(np.hypot(*shift)) <= max_shift:

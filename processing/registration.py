@@ -176,6 +176,7 @@ def estimate_shift_checked(
     border: int = 8,
     smooth_sigma: float = 1.0,
     robust_scale: float = 2.0,
+    max_shift: float | None = None,
 ) -> tuple[tuple[float, float], bool]:
     """Sub-pixel translation of ``moving`` with respect to ``reference``.
 
@@ -195,6 +196,12 @@ def estimate_shift_checked(
     robust_scale : float
         Cauchy weight scale in multiples of the robust (MAD) residual spread; residuals far
         above it (gas, moving objects) get weights ~ (scale / residual)^2.
+    max_shift : float or None
+        Largest plausible shift in px (the camera's jitter). When the phase-correlation
+        start or its refinement lies beyond it, or the refinement does not converge, a
+        second refinement starts from zero and the converged one with the smaller
+        residual is returned (see the comment in the code). None: no bound (only
+        non-convergence triggers the second refinement).
 
     Returns
     -------
@@ -236,7 +243,6 @@ def estimate_shift_checked(
     ref_half = cv2.pyrDown(ref)
     mov_half = cv2.pyrDown(mov)
     (hx, hy), _ = cv2.phaseCorrelate(ref_half, mov_half, _hanning(ref_half.shape))
-    dx, dy = 2.0 * hx, 2.0 * hy
 
     # Inverse-compositional style: the reference gradient is fixed, so the 2x2 normal
     # matrix changes only through the robust weights.
@@ -250,26 +256,62 @@ def estimate_shift_checked(
     if sxx * syy - sxy * sxy <= 1e-12 * n_inner**2:
         raise ValueError("reference image has no texture: the translation cannot be measured")
 
+    start = (2.0 * hx, 2.0 * hy)
+    shift, converged, cost = _refine(ref, mov, gx, gy, start, border=border,
+                                     robust_scale=robust_scale, max_iter=max_iter, tol=tol)
+
+    def plausible(d: tuple[float, float]) -> bool:
+        return max_shift is None or float(np.hypot(*d)) <= max_shift
+
+    if (converged and plausible(shift) and plausible(start)) or start == (0.0, 0.0):
+        return shift, converged
+    # Phase correlation may have found something else than the camera's shake: a warm
+    # object moving across the view makes the strongest peak (its own motion, several
+    # px), and the refinement started there converges to that motion or crawls back too
+    # slowly (measured: a 3 px start, jitter 0.2-0.7 px, 20 iterations not enough). So a
+    # start or result beyond ``max_shift``, or no convergence, is checked against a
+    # refinement from zero (jitter is small): the converged one whose residual is
+    # smaller (median |r|: the static background's fit) wins; a true shift beyond
+    # ``max_shift`` still wins over a false local fit and is then rejected by the caller.
+    z_shift, z_converged, z_cost = _refine(ref, mov, gx, gy, (0.0, 0.0), border=border,
+                                           robust_scale=robust_scale, max_iter=max_iter,
+                                           tol=tol)
+    if z_converged and (not converged or z_cost < cost):
+        return z_shift, True
+    return shift, converged
+
+
+def _refine(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+            start: tuple[float, float], *, border: int, robust_scale: float, max_iter: int,
+            tol: float) -> tuple[tuple[float, float], bool, float]:
+    """Robust Gauss-Newton refinement of the shift from ``start``.
+
+    Returns (shift, converged, cost), cost the Cauchy scale of the last residual (the
+    median |r|, i.e. how well the static background fits; inf when it diverged).
+    """
+    h, w = ref.shape
+    dx, dy = start
+    c = np.inf
     for _ in range(max_iter):
         if max(abs(dx), abs(dy)) + 3 > min(h, w) // 2:
-            return (float(dx), float(dy)), False  # diverged far beyond any jitter
+            return (float(dx), float(dy)), False, np.inf  # diverged far beyond any jitter
         resid = warp_translation(mov, (dx, dy))
         resid -= ref
         c = _cauchy_scale(resid, border, robust_scale)
         a11, a12, a22, b1, b2 = _gauss_newton_sums(resid, gx, gy, border, c)
         det = a11 * a22 - a12 * a12
         if det <= 0.0:
-            return (float(dx), float(dy)), False
+            return (float(dx), float(dy)), False, np.inf
         # moving(x + d + delta) ~ moving(x + d) + grad . delta = reference(x)
         step_x = -(a22 * b1 - a12 * b2) / det
         step_y = -(a11 * b2 - a12 * b1) / det
         dx += step_x
         dy += step_y
         if step_x * step_x + step_y * step_y < tol * tol:
-            return (float(dx), float(dy)), True
+            return (float(dx), float(dy)), True, c
     # No convergence: a rigid shift does not explain the change (moving gas over a
     # featureless background, not camera jitter over a static scene).
-    return (float(dx), float(dy)), False
+    return (float(dx), float(dy)), False, c
 
 
 def register_to_reference(

@@ -102,6 +102,8 @@ class ChainState:
         How many shifts came from ``shifts`` instead of being estimated.
     warm_starts, cold_starts : int
         How many calls started warm and cold (for the benchmark and the tests).
+    warm_run : int
+        Warm starts since the last cold start (for ``ChainParameters.cold_every``).
     frames : dict
         Corrected and rectified frames of the last triple by (camera, capture time), camera
         0 = left, 1 = right (:func:`corrected_frame`).
@@ -119,6 +121,7 @@ class ChainState:
     shifts_reused: int = 0
     warm_starts: int = 0
     cold_starts: int = 0
+    warm_run: int = 0
     frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
     frames_reused: int = 0
 
@@ -152,19 +155,26 @@ class WarmStart:
 
 
 def warm_start(state: ChainState | None, times: tuple[float, float, float],
-               enabled: bool) -> WarmStart | None:
+               enabled: bool, cold_every: int = 0) -> WarmStart | None:
     """The warm start for a triple at ``times``, or None when it must start cold.
 
-    Counts the decision in the state's ``warm_starts`` / ``cold_starts``.
+    ``cold_every`` > 0 makes every ``cold_every``-th triple of an unbroken warm run start
+    cold anyway: a warm start cannot leave a wrong state (a d' pinned by a warm object in
+    the first triple stayed wrong for the whole run, measured), a cold start can, so the
+    restarts bound how long an error lives. Counts the decision in the state's
+    ``warm_starts`` / ``cold_starts``.
     """
     if state is None:
         return None
     ok = (enabled and state.follows(times) and state.previous_flow is not None
-          and state.previous_disparity is not None and state.previous_change is not None)
+          and state.previous_disparity is not None and state.previous_change is not None
+          and not (cold_every > 0 and state.warm_run + 1 >= cold_every))
     if not ok:
         state.cold_starts += 1
+        state.warm_run = 0
         return None
     state.warm_starts += 1
+    state.warm_run += 1
     assert state.previous_flow is not None and state.previous_disparity is not None
     assert state.previous_change is not None
     return WarmStart(state.previous_flow, state.previous_disparity, state.previous_change)

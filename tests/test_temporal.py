@@ -97,6 +97,28 @@ def test_warm_start_can_be_switched_off_and_the_state_reset() -> None:
     assert not compute_scene_flow(*_triple(seq, 1), GEOMETRY, PARAMS, state).warm
 
 
+def test_cold_every_bounds_a_warm_run() -> None:
+    """Every cold_every-th triple of an unbroken warm run starts cold (so a wrong state
+    cannot live longer), and the run counts again from there."""
+    seq = _sequence(9)
+    params = dataclasses.replace(PARAMS, cold_every=3)
+    state = ChainState()
+    warm = [compute_scene_flow(*_triple(seq, k), GEOMETRY, params, state).warm
+            for k in range(7)]
+    assert warm == [False, True, True, False, True, True, False]
+    assert (state.warm_starts, state.cold_starts) == (4, 3)
+    never = dataclasses.replace(PARAMS, cold_every=0)
+    state = ChainState()
+    assert [compute_scene_flow(*_triple(seq, k), GEOMETRY, never, state).warm
+            for k in range(4)] == [False, True, True, True]
+
+
+@pytest.mark.parametrize("bad", [-1, 2.5, True, "3"])
+def test_bad_cold_every_raises(bad: object) -> None:
+    with pytest.raises(ValueError, match="cold_every"):
+        ChainParameters(cold_every=bad)  # type: ignore[arg-type]
+
+
 def test_bad_stride_raises() -> None:
     with pytest.raises(ValueError, match="stride"):
         ChainState(stride=3)
