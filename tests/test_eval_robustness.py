@@ -64,3 +64,30 @@ def test_simulator_calibration_inverts_the_cameras_counts() -> None:
         counts = to_counts(radiance, CountsModel(model.gain, model.offset))
         back = apply_characteristic_curve(counts, curve)
         assert np.allclose(back, radiance, atol=0.6 / model.gain)
+
+
+def test_lens_condition_rectifies_frames_and_moves_the_truth_with_them(tmp_path: Path) -> None:
+    """A calibrated lens row hands the chain rectification maps, and the ground truth is
+    resampled by the same maps (a rectified pixel sees the ray of the distorted pixel its
+    map points to); an uncalibrated one leaves both on the distorted grid."""
+    from processing.synthetic.cameras import StereoRenderer
+
+    cal = rb.Condition("lens cal.", lens_k1=rb.LENS_K1)
+    uncal = rb.Condition("lens uncal.", lens_k1=rb.LENS_K1, calibrated=False)
+    base = rb.scene_config(TINY.scenes[0], TINY, lens_k1=rb.LENS_K1)
+    assert base.effective_camera().k1 == rb.LENS_K1
+    geo = rb.condition_geometry(rb.condition_config(base, cal), cal)
+    assert geo.maps_left is not None and geo.curve_left is not None
+    assert rb.condition_geometry(rb.condition_config(base, uncal), uncal).maps_left is None
+    frame = StereoRenderer(rb.condition_config(base, cal)).render(
+        rb.gas_frames(base, tmp_path)[1])
+    moved = rb.rectified_truth(frame, geo)
+    mx, my = geo.maps_left
+    ys, xs = np.nonzero(moved.gt_mask)
+    assert len(ys) > 50
+    src_x = np.rint(mx[ys, xs]).astype(int)
+    src_y = np.rint(my[ys, xs]).astype(int)
+    assert frame.gt_mask[src_y, src_x].all()
+    np.testing.assert_array_equal(moved.gt_velocity[ys, xs], frame.gt_velocity[src_y, src_x])
+    # barrel distortion: the maps pull the corners outwards, so the truth really moved
+    assert abs(mx[0, 0] - 0.0) > 1.0

@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from appliance.evaluation.sceneflow import Log, Metrics, aggregate, evaluate_frames
@@ -36,6 +37,7 @@ from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.presets import preset_field
 from processing.synthetic.render import GroundTruth
 from processing.synthetic.sequences import SyntheticStereoScene
+from processing.synthetic.storage import SyntheticFrame
 
 #: Bump when the simulation or the cache layout changes (invalidates cached gas frames).
 CACHE_VERSION = 1
@@ -67,7 +69,9 @@ class Condition:
 
     ``gain_mismatch`` is the right camera's relative gain excess; ``calibrated`` gives the
     chain the characteristic curves the simulator's calibration file holds (so a mismatch
-    is corrected, as on a calibrated site). ``t_gas_k`` overrides the gas temperature
+    is corrected, as on a calibrated site), and its lens distortion, so that the chain
+    rectifies the frames; ``lens_k1`` gives both lenses radial distortion (the scene's gas
+    is then rendered through them, its own simulation). ``t_gas_k`` overrides the gas temperature
     (285 K against 300 K by default: a small difference is the low-contrast case);
     ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation).
     """
@@ -81,6 +85,7 @@ class Condition:
     moving_object: bool = False
     t_gas_k: float | None = None
     release_rate_g_s: float | None = None
+    lens_k1: float = 0.0
     realistic: bool = True
 
 
@@ -94,6 +99,10 @@ class Matrix:
     n_frames: int = 14
     voxel_m: float = 0.05
 
+
+#: Radial distortion of the lens rows: barrel, 2.6 px at the corners of the field camera
+#: (r = 0.26 in normalised coordinates), a modest wide lens.
+LENS_K1 = -0.2
 
 _SCENES = (Scene(7, (1.5, 0.0, 0.0)), Scene(7, (1.0, 0.0, 1.0)),
            Scene(11, (1.5, 0.0, 0.0)), Scene(11, (1.0, 0.0, 1.0)))
@@ -116,6 +125,8 @@ DEFAULT_MATRIX = Matrix(
         Condition("gain 4 % cal.", gain_mismatch=0.04),
         Condition("gain 8 % cal.", gain_mismatch=0.08),
         Condition("moving object", moving_object=True),
+        Condition("lens k1 -0.2 uncal.", lens_k1=LENS_K1, calibrated=False, realistic=False),
+        Condition("lens k1 -0.2 cal.", lens_k1=LENS_K1),
         Condition("low contrast 3 K", t_gas_k=297.0, realistic=False),
         Condition("low contrast 3 K, noise 0.03 K", t_gas_k=297.0, noise_netd_k=0.03,
                   realistic=False),
@@ -160,11 +171,15 @@ TARGET_WORST = {"rmve": 20.0, "aemv": 20.0}
 
 
 def scene_config(scene: Scene, matrix: Matrix,
-                 release_rate_g_s: float | None = None) -> SequenceConfig:
-    """The ``field`` preset of one scene (no camera effect yet)."""
+                 release_rate_g_s: float | None = None, lens_k1: float = 0.0) -> SequenceConfig:
+    """The ``field`` preset of one scene (no camera effect yet but the lens: the gas is
+    rendered through it, so a distorted lens has its own cached gas)."""
     rate = scene.release_rate_g_s if release_rate_g_s is None else release_rate_g_s
-    return preset_field(n_frames=matrix.n_frames, wind_m_s=scene.wind_m_s,
-                        release_rate_g_s=rate, seed=scene.seed, voxel_m=matrix.voxel_m)
+    config = preset_field(n_frames=matrix.n_frames, wind_m_s=scene.wind_m_s,
+                          release_rate_g_s=rate, seed=scene.seed, voxel_m=matrix.voxel_m)
+    if lens_k1:
+        config = replace(config, camera=replace(config.camera, k1=float(lens_k1)))
+    return config
 
 
 def condition_config(base: SequenceConfig, cond: Condition) -> SequenceConfig:
@@ -180,12 +195,37 @@ def condition_config(base: SequenceConfig, cond: Condition) -> SequenceConfig:
 
 
 def condition_geometry(config: SequenceConfig, cond: Condition) -> StereoGeometry:
-    """What the chain knows of the cameras: the simulator's calibration file, or (for an
-    uncalibrated condition) the ideal geometry without characteristic curves."""
+    """What the chain knows of the cameras: the simulator's calibration file (curves, and
+    rectification maps when the lenses distort), or (for an uncalibrated condition) the
+    ideal geometry without characteristic curves or maps."""
     calib = synthetic_calibration(config)
     if not cond.calibrated:
         calib = replace(calib, radiometric=None)
-    return StereoGeometry.from_calibration(calib, rectify=False)
+    return StereoGeometry.from_calibration(calib, rectify=cond.calibrated and cond.lens_k1 != 0)
+
+
+def rectified_truth(frame: SyntheticFrame, geometry: StereoGeometry) -> SyntheticFrame:
+    """``frame`` with its ground truth moved onto the rectified grid the chain works on.
+
+    The simulator's truth lies on the distorted pixel grid of the left camera; a rectified
+    pixel sees the ray of the distorted pixel its map points to, so the truth is resampled
+    with the same maps (nearest neighbour: a gas velocity is never blended with "no gas").
+    Without maps the frame is returned as it is.
+    """
+    if geometry.maps_left is None:
+        return frame
+    mx, my = geometry.maps_left
+
+    def remap(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a)
+        src = a.astype(np.float32) if a.dtype != np.float32 else a
+        out = cv2.remap(src, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                        borderValue=0)
+        return out.astype(a.dtype) if a.dtype != bool else out > 0.5
+
+    return replace(frame, gt_velocity=remap(frame.gt_velocity),
+                   gt_position=remap(frame.gt_position), gt_mask=remap(frame.gt_mask),
+                   column_density_ppm_m=remap(frame.column_density_ppm_m))
 
 
 def chain_parameters(config: SequenceConfig) -> ChainParameters:
@@ -277,15 +317,16 @@ def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, 
     pooled: list[Metrics] = []
     flags: dict[str, int] = {}
     for scene in matrix.scenes:
-        base = scene_config(scene, matrix, cond.release_rate_g_s)
+        base = scene_config(scene, matrix, cond.release_rate_g_s, cond.lens_k1)
         gas = gas_frames(base, cache_dir, log)
         cfg = condition_config(base, cond)
         renderer = StereoRenderer(cfg)
-        frames = [renderer.render(g) for g in gas]
+        geometry = condition_geometry(cfg, cond)
+        frames = [rectified_truth(renderer.render(g), geometry) for g in gas]
         params = chain_parameters(cfg)
         if params_hook is not None:
             params = params_hook(params)
-        summary, _ = evaluate_frames(frames, condition_geometry(cfg, cond), params,
+        summary, _ = evaluate_frames(frames, geometry, params,
                                      methods=("proposed",), name=scene.name)
         scenes[scene.name] = summary["proposed"]
         pooled.extend(summary["proposed"]["frames"])
