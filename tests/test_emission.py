@@ -129,6 +129,21 @@ def test_placement_finds_the_source_and_orients_curtains_downstream() -> None:
     assert fr.rate_g_s is not None and all(q > 0 for q in fr.curtain_rates_g_s)
 
 
+def test_placement_leaves_out_the_first_fifth_of_the_plume() -> None:
+    """The flow reads the young plume near its source too fast (README, eval emission):
+    by default no curtain lies in the first 20 % of the plume's length."""
+    gas, flow = _plume_mask()  # x = 40 .. 280
+    xs = np.nonzero(gas)[1]
+    lo, hi = np.percentile(xs, [2.0, 98.0])
+    p = place_curtains(gas, flow)
+    assert p.reason == "" and len(p.curtains) == 5
+    assert min(c.start[0] for c in p.curtains) == pytest.approx(lo + 0.2 * (hi - lo))
+    short = place_curtains(gas, flow, exclusion_fraction=0.0)  # then exclusion_px rules
+    assert min(c.start[0] for c in short.curtains) == pytest.approx(lo + 12.0)
+    with pytest.raises(ValueError, match="exclusion_fraction"):
+        place_curtains(gas, flow, exclusion_fraction=1.0)
+
+
 def test_placement_reports_why_there_are_no_curtains() -> None:
     gas, flow = _plume_mask()
     assert place_curtains(np.zeros_like(gas), flow).reason == "no gas"
@@ -212,3 +227,25 @@ def test_curtain_samples_every_pixel_once() -> None:
                         camera_constant=S_PX)
     assert half.gas_samples == 20
     assert half.rate_kg_s == pytest.approx(full.rate_kg_s / 2, rel=1e-3)
+
+
+def test_estimator_background_is_not_learnt_from_a_plumes_faint_edge() -> None:
+    """A pixel under a steady plume's faint edge, which the segmentation marks as gas in
+    only 60 % of the frames, is never free of gas: its 40 % "free" samples must not make
+    its background (the former 8-of-60 rule took them and read CL = 0 there)."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    cl = np.zeros((60, 80))
+    cl[20:40, 30:50] = 200.0  # the faint edge, there in every frame
+    frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    est = EmissionEstimator(EmissionSettings(faint_gas_px=0), (40.0, 30.0), S_PX, None)
+    for k in range(60):
+        mask = np.zeros(cl.shape, bool)
+        mask[20:40, 30:50] = k % 5 < 3  # segmented in 3 of every 5 frames
+        sigma = est.column_kg_m2(frame, mask, t_gas)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    assert sigma[20:40, 30:50] == pytest.approx(np.full((20, 20), expected), rel=0.01)
+    assert np.abs(sigma[cl == 0]).max() < 1e-3 * expected
