@@ -249,3 +249,29 @@ def test_estimator_background_is_not_learnt_from_a_plumes_faint_edge() -> None:
                               temperature_k=t_gas)
     assert sigma[20:40, 30:50] == pytest.approx(np.full((20, 20), expected), rel=0.01)
     assert np.abs(sigma[cl == 0]).max() < 1e-3 * expected
+
+
+def test_v_z_enters_a_curtain_flux_only_through_the_depth_at_t1() -> None:
+    """On a curtain of viewing rays V . n = Z1 f (w . n) / s with Z1 = s b / (d + d'):
+    a d' that changes V_Z by metres per second changes the rate by d / (d + d') only
+    (README, "What the rate takes from the scene flow"), even far off the optical axis."""
+    from processing.velocity import scene_flow_velocity
+
+    b, dt, d = 0.3, 1 / 30, 40.0
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0], flow[..., 1] = 2.0, 0.5
+    disp = np.full((H, W), d, np.float32)
+    sigma = np.full((H, W), 1e-4)
+    gas = np.ones((H, W), bool)
+    curtain = Curtain((280, 20), (290, 220))  # off-axis: n has a Z component
+    rates, vz = [], []
+    for dd in (0.0, 0.4):
+        vel, ok = scene_flow_velocity(flow, disp, np.full((H, W), dd, np.float32),
+                                      principal_point=(CX, CY), camera_constant=S_PX,
+                                      baseline=b, dt=dt)
+        f = curtain_flux(curtain, sigma, vel, np.full((H, W), S_PX * b / d), ok, gas,
+                         principal_point=(CX, CY), camera_constant=S_PX)
+        rates.append(f.rate_kg_s)
+        vz.append(float(vel[120, 285, 2]))
+    assert abs(vz[1] - vz[0]) > 1.0  # m/s
+    assert rates[1] / rates[0] == pytest.approx(d / (d + 0.4), rel=2e-3)

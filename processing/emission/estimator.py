@@ -155,6 +155,16 @@ class EmissionEstimator:
                                          temperature_k=gas_temperature_k,
                                          pressure_pa=self.settings.pressure_pa))
 
+    def faint_mask(self, sigma_kg_m2: np.ndarray, gas_mask: np.ndarray) -> np.ndarray | None:
+        """The faint plume edge the segmentation missed (:func:`faint_gas` with the
+        settings), (H, W) bool; None when ``faint_gas_px`` is 0 or there is no gas."""
+        if self.settings.faint_gas_px <= 0 or not gas_mask.any():
+            return None
+        floor = float(ppm_m_to_kg_m2(self.settings.faint_floor_ppm_m,
+                                     molar_mass_kg_mol=self.settings.gas.molar_mass_kg_mol,
+                                     temperature_k=288.15))
+        return faint_gas(sigma_kg_m2, gas_mask, self.settings.faint_gas_px, floor)
+
     def rates(self, sigma_kg_m2: np.ndarray, *, flow: np.ndarray, velocity: np.ndarray,
               depth: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
               dt_s: float) -> CurtainRates:
@@ -162,12 +172,7 @@ class EmissionEstimator:
         detected source (shapes and units as in
         :func:`processing.emission.curtains.curtain_flux`; ``flow`` in px per ``dt_s``)."""
         pp, s = self.principal_point, self.camera_constant
-        faint = None
-        if self.settings.faint_gas_px > 0 and gas_mask.any():
-            floor = float(ppm_m_to_kg_m2(self.settings.faint_floor_ppm_m,
-                                         molar_mass_kg_mol=self.settings.gas.molar_mass_kg_mol,
-                                         temperature_k=288.15))
-            faint = faint_gas(sigma_kg_m2, gas_mask, self.settings.faint_gas_px, floor)
+        faint = self.faint_mask(sigma_kg_m2, gas_mask)
         # The curtains cut the whole plume, faint edges included.
         placement = place_curtains(gas_mask if faint is None else gas_mask | faint, flow)
         z_typed = self.settings.typed_distance_m
