@@ -240,7 +240,8 @@ def test_estimator_background_is_not_learnt_from_a_plumes_faint_edge() -> None:
     cl = np.zeros((60, 80))
     cl[20:40, 30:50] = 200.0  # the faint edge, there in every frame
     frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
-    est = EmissionEstimator(EmissionSettings(faint_gas_px=0), (40.0, 30.0), S_PX, None)
+    est = EmissionEstimator(EmissionSettings(faint_gas_px=0, background_margin_px=0),
+                            (40.0, 30.0), S_PX, None)
     for k in range(60):
         mask = np.zeros(cl.shape, bool)
         mask[20:40, 30:50] = k % 5 < 3  # segmented in 3 of every 5 frames
@@ -275,3 +276,23 @@ def test_v_z_enters_a_curtain_flux_only_through_the_depth_at_t1() -> None:
         vz.append(float(vel[120, 285, 2]))
     assert abs(vz[1] - vz[0]) > 1.0  # m/s
     assert rates[1] / rates[0] == pytest.approx(d / (d + 0.4), rel=2e-3)
+
+
+def test_estimator_keeps_a_wide_margin_around_the_gas_out_of_the_background() -> None:
+    """Gas 20 px beyond the segmentation (outside the 15 px faint edge that is counted, as
+    downstream of a widening plume) must not become background: its CL is measured."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    cl = np.zeros((100, 120))
+    cl[45:55, 75:85] = 200.0  # 20-30 px right of the segmented gas
+    frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    mask = np.zeros(cl.shape, bool)
+    mask[40:60, 35:55] = True
+    est = EmissionEstimator(EmissionSettings(), (60.0, 50.0), S_PX, None)
+    for _ in range(20):
+        sigma = est.column_kg_m2(frame, mask, t_gas)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    assert sigma[45:55, 75:85] == pytest.approx(np.full((10, 10), expected), rel=0.01)
