@@ -17,19 +17,14 @@ nearest the source). The input whose truth removes the error is the one that cau
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from appliance.evaluation.emission import _geometry, chain_parameters, typed_distance_m
-from processing.chain import ChainState, compute_scene_flow
-from processing.emission import METHANE
+from appliance.evaluation.emission import iter_triples, sequence_setup
 from processing.emission.curtains import curtain_flux
-from processing.emission.estimator import EmissionEstimator, EmissionSettings
 from processing.emission.gas import ppm_m_to_kg_m2
 from processing.emission.truth import true_curtain_flux
-from processing.synthetic import read_frame, read_sequence_meta
 from processing.synthetic.reference import eq4_reference
 from processing.velocity import scene_flow_velocity
 
@@ -44,30 +39,14 @@ def _pick(has: np.ndarray, measured: np.ndarray, truth: np.ndarray) -> np.ndarra
 
 def decompose(directory: Path, triples: int | None) -> dict[str, np.ndarray]:
     """Per (triple, curtain): the true flux and the rate with each input of ``INPUTS``, g/s."""
-    meta = read_sequence_meta(directory)
-    geom = _geometry(directory, meta)
-    params = chain_parameters(meta)
-    rad = meta["radiometry"]
-    gas = replace(METHANE, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]))
-    t_gas = float(rad["t_gas_k"])
+    setup = sequence_setup(directory)
+    est, t_gas = setup.estimator, setup.t_gas_k
+    gas = est.settings.gas
+    geom = setup.geometry
     pp, s, b = geom.principal_point, geom.camera_constant, geom.baseline
-    est = EmissionEstimator(EmissionSettings(gas=gas, typed_distance_m=typed_distance_m(meta)),
-                            pp, s, geom.curve_left)
-    n = int(meta["n_frames"]) - 2 if triples is None else min(triples, int(meta["n_frames"]) - 2)
-    frames = [read_frame(directory, i, meta) for i in range(n + 2)]
-    state, sigmas = ChainState(), []
     rows: dict[str, list[list[float]]] = {k: [] for k in ("truth", *INPUTS)}
-    for i in range(n):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geom, params, state)
-        if i == 0:
-            sigmas.append(est.column_kg_m2(f0.left, res.gas_mask, t_gas))
-        sigmas.append(est.column_kg_m2(f1.left, res.gas_mask, t_gas))
-        sigma = 0.5 * (sigmas[i] + sigmas[i + 1])
-        rates = est.rates(sigma, flow=res.flow, velocity=res.velocity,
-                          depth=res.position[..., 2], valid=res.valid, gas_mask=res.gas_mask,
-                          dt_s=res.dt_s)
+    for tr in iter_triples(directory, setup, triples):
+        f0, f1, res, sigma, rates = tr.first, tr.second, tr.result, tr.sigma_kg_m2, tr.rates
         v_true = 0.5 * (f0.gt_velocity.astype(np.float64) + f1.gt_velocity.astype(np.float64))
         ref = eq4_reference(f0.gt_position, v_true, s, b, res.dt_s)
         has = np.isfinite(ref.u) & np.isfinite(ref.v) & np.isfinite(ref.d) & np.isfinite(
