@@ -129,6 +129,21 @@ def test_placement_finds_the_source_and_orients_curtains_downstream() -> None:
     assert fr.rate_g_s is not None and all(q > 0 for q in fr.curtain_rates_g_s)
 
 
+def test_placement_leaves_out_the_first_fifth_of_the_plume() -> None:
+    """The flow reads the young plume near its source too fast (README, eval emission):
+    by default no curtain lies in the first 20 % of the plume's length."""
+    gas, flow = _plume_mask()  # x = 40 .. 280
+    xs = np.nonzero(gas)[1]
+    lo, hi = np.percentile(xs, [2.0, 98.0])
+    p = place_curtains(gas, flow)
+    assert p.reason == "" and len(p.curtains) == 5
+    assert min(c.start[0] for c in p.curtains) == pytest.approx(lo + 0.2 * (hi - lo))
+    short = place_curtains(gas, flow, exclusion_fraction=0.0)  # then exclusion_px rules
+    assert min(c.start[0] for c in short.curtains) == pytest.approx(lo + 12.0)
+    with pytest.raises(ValueError, match="exclusion_fraction"):
+        place_curtains(gas, flow, exclusion_fraction=1.0)
+
+
 def test_placement_reports_why_there_are_no_curtains() -> None:
     gas, flow = _plume_mask()
     assert place_curtains(np.zeros_like(gas), flow).reason == "no gas"
@@ -212,3 +227,72 @@ def test_curtain_samples_every_pixel_once() -> None:
                         camera_constant=S_PX)
     assert half.gas_samples == 20
     assert half.rate_kg_s == pytest.approx(full.rate_kg_s / 2, rel=1e-3)
+
+
+def test_estimator_background_is_not_learnt_from_a_plumes_faint_edge() -> None:
+    """A pixel under a steady plume's faint edge, which the segmentation marks as gas in
+    only 60 % of the frames, is never free of gas: its 40 % "free" samples must not make
+    its background (the former 8-of-60 rule took them and read CL = 0 there)."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    cl = np.zeros((60, 80))
+    cl[20:40, 30:50] = 200.0  # the faint edge, there in every frame
+    frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    est = EmissionEstimator(EmissionSettings(faint_gas_px=0, background_margin_px=0),
+                            (40.0, 30.0), S_PX, None)
+    for k in range(60):
+        mask = np.zeros(cl.shape, bool)
+        mask[20:40, 30:50] = k % 5 < 3  # segmented in 3 of every 5 frames
+        sigma = est.column_kg_m2(frame, mask, t_gas)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    assert sigma[20:40, 30:50] == pytest.approx(np.full((20, 20), expected), rel=0.01)
+    assert np.abs(sigma[cl == 0]).max() < 1e-3 * expected
+
+
+def test_v_z_enters_a_curtain_flux_only_through_the_depth_at_t1() -> None:
+    """On a curtain of viewing rays V . n = Z1 f (w . n) / s with Z1 = s b / (d + d'):
+    a d' that changes V_Z by metres per second changes the rate by d / (d + d') only
+    (README, "What the rate takes from the scene flow"), even far off the optical axis."""
+    from processing.velocity import scene_flow_velocity
+
+    b, dt, d = 0.3, 1 / 30, 40.0
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[..., 0], flow[..., 1] = 2.0, 0.5
+    disp = np.full((H, W), d, np.float32)
+    sigma = np.full((H, W), 1e-4)
+    gas = np.ones((H, W), bool)
+    curtain = Curtain((280, 20), (290, 220))  # off-axis: n has a Z component
+    rates, vz = [], []
+    for dd in (0.0, 0.4):
+        vel, ok = scene_flow_velocity(flow, disp, np.full((H, W), dd, np.float32),
+                                      principal_point=(CX, CY), camera_constant=S_PX,
+                                      baseline=b, dt=dt)
+        f = curtain_flux(curtain, sigma, vel, np.full((H, W), S_PX * b / d), ok, gas,
+                         principal_point=(CX, CY), camera_constant=S_PX)
+        rates.append(f.rate_kg_s)
+        vz.append(float(vel[120, 285, 2]))
+    assert abs(vz[1] - vz[0]) > 1.0  # m/s
+    assert rates[1] / rates[0] == pytest.approx(d / (d + 0.4), rel=2e-3)
+
+
+def test_estimator_keeps_a_wide_margin_around_the_gas_out_of_the_background() -> None:
+    """Gas 20 px beyond the segmentation (outside the 15 px faint edge that is counted, as
+    downstream of a widening plume) must not become background: its CL is measured."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    cl = np.zeros((100, 120))
+    cl[45:55, 75:85] = 200.0  # 20-30 px right of the segmented gas
+    frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    mask = np.zeros(cl.shape, bool)
+    mask[40:60, 35:55] = True
+    est = EmissionEstimator(EmissionSettings(), (60.0, 50.0), S_PX, None)
+    for _ in range(20):
+        sigma = est.column_kg_m2(frame, mask, t_gas)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    assert sigma[45:55, 75:85] == pytest.approx(np.full((10, 10), expected), rel=0.01)

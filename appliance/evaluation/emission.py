@@ -26,8 +26,8 @@ truth to tune a measurement: the truth only scores it.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
-from dataclasses import replace
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,11 +35,17 @@ import numpy as np
 
 from appliance.evaluation.robustness import FIELD_DISPARITY_OPTIONS
 from processing.calibration import load_calibration
-from processing.chain import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
+from processing.chain import (
+    ChainParameters,
+    ChainState,
+    SceneFlowResult,
+    StereoGeometry,
+    compute_scene_flow,
+)
 from processing.emission import METHANE, RateWindow
-from processing.emission.estimator import EmissionEstimator, EmissionSettings
+from processing.emission.estimator import CurtainRates, EmissionEstimator, EmissionSettings
 from processing.emission.truth import true_curtain_flux
-from processing.synthetic import read_frame, read_sequence_meta
+from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
 from processing.synthetic.storage import META_NAME
 
 Log = Callable[[str], None]
@@ -86,6 +92,76 @@ def _geometry(directory: Path, meta: dict[str, Any]) -> StereoGeometry:
     return StereoGeometry.from_synthetic_camera(meta["camera"])
 
 
+@dataclass(frozen=True)
+class Triple:
+    """One triple of a sequence as ``eval emission`` processes it.
+
+    ``sigma_kg_m2`` is the column density the rate used (mean of frames i and i+1),
+    ``rates`` the stereo and single-camera rates on its curtains.
+    """
+
+    index: int
+    first: SyntheticFrame
+    second: SyntheticFrame
+    result: SceneFlowResult
+    sigma_kg_m2: np.ndarray
+    rates: CurtainRates
+
+
+@dataclass(frozen=True)
+class SequenceSetup:
+    """What the rate of a sequence needs: its meta, geometry, chain parameters, estimator,
+    gas temperature (K) and the single camera's typed-in distance (m)."""
+
+    meta: dict[str, Any]
+    geometry: StereoGeometry
+    params: ChainParameters
+    estimator: EmissionEstimator
+    t_gas_k: float
+    z_typed_m: float
+
+
+def sequence_setup(directory: Path) -> SequenceSetup:
+    """The calibrated site of a simulated sequence (module docstring)."""
+    meta = read_sequence_meta(directory)
+    geometry = _geometry(directory, meta)
+    rad = meta["radiometry"]
+    # A calibrated site: alpha from a gas cell, the gas at the ambient (sonic) temperature.
+    gas = replace(METHANE, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                  source="the scene's (a gas-cell calibration)")
+    z_typed = typed_distance_m(meta)
+    estimator = EmissionEstimator(EmissionSettings(gas=gas, typed_distance_m=z_typed),
+                                  geometry.principal_point, geometry.camera_constant,
+                                  geometry.curve_left)
+    return SequenceSetup(meta, geometry, chain_parameters(meta), estimator,
+                         float(rad["t_gas_k"]), z_typed)
+
+
+def iter_triples(directory: Path, setup: SequenceSetup,
+                 max_triples: int | None = None) -> Iterator[Triple]:
+    """Run the chain and the rate on every consecutive triple (i, i+1, i+2) in order."""
+    meta, est = setup.meta, setup.estimator
+    n = int(meta["n_frames"])
+    frames = [read_frame(directory, i, meta) for i in range(n)]
+    if frames[0].flux_moment_kg_s is None:
+        raise ValueError(f"{directory}: written before the emission ground truth; simulate "
+                         "it again")
+    sigmas: list[np.ndarray] = []
+    state = ChainState()
+    for i in range(n - 2 if max_triples is None else min(n - 2, max_triples)):
+        f0, f1, f2 = frames[i:i + 3]
+        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
+                                 [f0.t_s, f1.t_s, f2.t_s], setup.geometry, setup.params, state)
+        if i == 0:
+            sigmas.append(est.column_kg_m2(f0.left, res.gas_mask, setup.t_gas_k))
+        sigmas.append(est.column_kg_m2(f1.left, res.gas_mask, setup.t_gas_k))
+        sigma = 0.5 * (sigmas[i] + sigmas[i + 1])
+        rates = est.rates(sigma, flow=res.flow, velocity=res.velocity,
+                          depth=res.position[..., 2], valid=res.valid, gas_mask=res.gas_mask,
+                          dt_s=res.dt_s)
+        yield Triple(i, f0, f1, res, sigma, rates)
+
+
 def evaluate_emission_sequence(directory: Path, *, name: str | None = None,
                                max_triples: int | None = None,
                                log: Log | None = None) -> dict[str, Any]:
@@ -98,41 +174,17 @@ def evaluate_emission_sequence(directory: Path, *, name: str | None = None,
         ``stereo_uncertainty_g_s``, ``single_camera_g_s``, errors, counts) and ``series``
         (per-triple rates, None where undefined) for the figure.
     """
-    meta = read_sequence_meta(directory)
-    name = name or directory.name
-    geometry = _geometry(directory, meta)
-    params = chain_parameters(meta)
-    rad = meta["radiometry"]
-    # A calibrated site: alpha from a gas cell, the gas at the ambient (sonic) temperature.
-    gas = replace(METHANE, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
-                  source="the scene's (a gas-cell calibration)")
-    t_gas = float(rad["t_gas_k"])
-    z_typed = typed_distance_m(meta)
-    pp, s = geometry.principal_point, geometry.camera_constant
-    estimator = EmissionEstimator(EmissionSettings(gas=gas, typed_distance_m=z_typed), pp, s,
-                                  geometry.curve_left)
-    n = int(meta["n_frames"])
-    frames = [read_frame(directory, i, meta) for i in range(n)]
-    if frames[0].flux_moment_kg_s is None:
-        raise ValueError(f"{directory}: written before the emission ground truth; simulate "
-                         "it again")
-    sigmas: list[np.ndarray] = []
+    setup = sequence_setup(directory)
+    meta, name = setup.meta, name or directory.name
+    pp, s = setup.geometry.principal_point, setup.geometry.camera_constant
     window = RateWindow(window_s=1e9)
     series: dict[str, list[float | None]] = {"truth": [], "stereo": [], "single": [],
                                              "release": []}
-    state = ChainState()
-    triples = n - 2 if max_triples is None else min(n - 2, max_triples)
+    triples = int(meta["n_frames"]) - 2
+    triples = triples if max_triples is None else min(triples, max_triples)
     start = time.perf_counter()
-    for i in range(triples):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
-        if i == 0:
-            sigmas.append(estimator.column_kg_m2(f0.left, res.gas_mask, t_gas))
-        sigmas.append(estimator.column_kg_m2(f1.left, res.gas_mask, t_gas))
-        rates = estimator.rates(0.5 * (sigmas[i] + sigmas[i + 1]), flow=res.flow,
-                                velocity=res.velocity, depth=res.position[..., 2],
-                                valid=res.valid, gas_mask=res.gas_mask, dt_s=res.dt_s)
+    for tr in iter_triples(directory, setup, max_triples):
+        i, f0, f1, rates = tr.index, tr.first, tr.second, tr.rates
         moment = 0.5 * (f0.flux_moment_kg_s.astype(np.float64)
                         + f1.flux_moment_kg_s.astype(np.float64))
         release = [f.release_rate_g_s for f in (f0, f1) if f.release_rate_g_s is not None]
@@ -150,7 +202,7 @@ def evaluate_emission_sequence(directory: Path, *, name: str | None = None,
                 + (f"stereo {rate.rate_g_s:.2f} g/s, true {series['truth'][-1]:.2f} g/s"
                    if defined else f"no rate ({rate.reason})")
                 + f" ({time.perf_counter() - start:.0f} s)")
-    return _record(meta, series, window, z_typed, time.perf_counter() - start)
+    return _record(meta, series, window, setup.z_typed_m, time.perf_counter() - start)
 
 
 def _mean(values: list[float | None]) -> float | None:
