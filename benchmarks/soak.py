@@ -106,17 +106,20 @@ def browse(stop: threading.Event, start_s: float, minutes: float, page_url: str,
 
 
 def last_health(rec_dir: Path) -> dict[str, Any] | None:
-    """The last ``/health`` snapshot in the newest closed recording of ``rec_dir``."""
+    """The last ``/health`` snapshot under ``rec_dir``: the newest closed recording that
+    holds one, in any of the retention layout's folders (results, raw, events)."""
     from appliance.recording.reader import iter_json
 
-    files = sorted(rec_dir.glob("ogiflow-*.mcap"))
-    if not files:
-        return None
-    last = None
-    _reader, messages = iter_json(files[-1], ["/health"])
-    for _topic, m in messages:
-        last = m
-    return last
+    # File names start with their UTC start time, so the name orders them in time.
+    files = sorted(rec_dir.rglob("ogiflow-*.mcap"), key=lambda f: f.name, reverse=True)
+    for path in files:
+        last = None
+        _reader, messages = iter_json(path, ["/health"])
+        for _topic, m in messages:
+            last = m
+        if last is not None:
+            return last
+    return None
 
 
 def plot(rows: list[tuple[float, str, int, float]], path: Path, title: str,
@@ -216,10 +219,13 @@ def main(argv: list[str] | None = None) -> int:
             # A cache still filling shows as a slope that falls from half to half.
             "slope_last_half_mb_per_h": (slope_mb_per_h(half[:, 0], half[:, 1])
                                          if len(half) else None)}
+    if health is None:
+        print(f"warning: no /health snapshot found under {rec_dir}: frame counters unknown "
+              "(see the daemon's last line in daemon.log)", file=sys.stderr)
     c = (health or {}).get("counters", {})
-    frames = c.get("frames_left", 0) + c.get("frames_right", 0)
-    lost = (c.get("frames_lost_left", 0) + c.get("frames_lost_right", 0)
-            + c.get("frame_queue_drops", 0))
+    frames = (c.get("frames_left", 0) + c.get("frames_right", 0)) if health else None
+    lost = ((c.get("frames_lost_left", 0) + c.get("frames_lost_right", 0)
+             + c.get("frame_queue_drops", 0)) if health else None)
     report = {
         "command": " ".join(cmd), "exit_code": code, "minutes": args.minutes,
         "warmup_min": args.warmup_min, "processes": procs,
