@@ -17,8 +17,15 @@ keeps up at 30 / every Hz (the event logic's windows are in seconds). Slow (a fe
 per minute of scene on this class of machine), hence a benchmark, not a test;
 ``tests/test_detection_simulated.py`` runs short versions.
 
+``--fields DIR`` also records what the event logic sees of every processed triple (gas
+mask, flow inside it; one file per scene minute, written as the run goes), and ``replay
+DIR`` runs the current event logic over such a recording in seconds: the chain's output
+does not depend on the event rules, so a replay gives the events a new run would.
+
     python benchmarks/bench_detection.py schedule --every 6 --json schedule.json
     python benchmarks/bench_detection.py no-release --minutes 30 --json no_release.json
+    python benchmarks/bench_detection.py no-release --minutes 30 --fields nr7/
+    python benchmarks/bench_detection.py replay nr7/ --json no_release.json
 """
 
 from __future__ import annotations
@@ -36,8 +43,11 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))  # `python benchmarks/bench_detection.py` from a checkout
 
+import numpy as np  # noqa: E402
+
 from appliance.evaluation.detection import (  # noqa: E402
     DetectionSettings,
+    detect_fields,
     detect_frames,
     score_releases,
     simulated_frames,
@@ -67,6 +77,57 @@ def _print_event(kind: str, event: Any) -> None:
           f"source {event.source_xy}", flush=True)
 
 
+class FieldRecorder:
+    """Writes every processed triple's gas mask and the flow inside it to ``folder``, one
+    ``fields-NNNN.npz`` per ``chunk_s`` of scene time (a stopped run keeps what it did)."""
+
+    def __init__(self, folder: Path, info: dict[str, Any], chunk_s: float = 60.0) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        if any(folder.glob("fields-*.npz")):
+            raise ValueError(f"{folder} already holds a recording")
+        self.folder, self.chunk_s, self.info = folder, chunk_s, info
+        self._rows: list[tuple[float, int, np.ndarray, np.ndarray]] = []
+        self._chunk = 0
+        (folder / "info.json").write_text(json.dumps(info, indent=1) + "\n")
+
+    def __call__(self, t_s: float, frame: int, mask: np.ndarray, flow: np.ndarray) -> None:
+        if self._rows and t_s >= (self._chunk + 1) * self.chunk_s:
+            self.flush()
+        m = np.asarray(mask, bool)
+        self._rows.append((t_s, frame, m, np.asarray(flow, np.float32)[m]))
+
+    def flush(self) -> None:
+        if not self._rows:
+            return
+        shape = self._rows[0][2].shape
+        np.savez_compressed(
+            self.folder / f"fields-{self._chunk:04d}.npz", shape=np.asarray(shape),
+            t_s=np.asarray([r[0] for r in self._rows]),
+            frame=np.asarray([r[1] for r in self._rows]),
+            mask=np.stack([np.packbits(r[2]) for r in self._rows]),
+            counts=np.asarray([len(r[3]) for r in self._rows]),
+            flow=np.concatenate([r[3] for r in self._rows]).reshape(-1, 2))
+        self._rows = []
+        self._chunk += 1
+
+
+def read_fields(folder: Path) -> Iterator[tuple[float, int, np.ndarray, np.ndarray]]:
+    """The triples of a :class:`FieldRecorder` recording: (t_s, frame, mask, flow), the flow
+    zero outside the mask (the event logic reads it only inside)."""
+    files = sorted(folder.glob("fields-*.npz"))
+    if not files:
+        raise ValueError(f"no fields-*.npz in {folder}")
+    for path in files:
+        with np.load(path) as z:
+            h, w = (int(v) for v in z["shape"])
+            offsets = np.concatenate([[0], np.cumsum(z["counts"])])
+            for k in range(len(z["t_s"])):
+                mask = np.unpackbits(z["mask"][k])[:h * w].reshape(h, w).astype(bool)
+                flow = np.zeros((h, w, 2), np.float32)
+                flow[mask] = z["flow"][offsets[k]:offsets[k + 1]]
+                yield float(z["t_s"][k]), int(z["frame"][k]), mask, flow
+
+
 def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, voxel_m: float,
                  every: int, seed: int, settings: DetectionSettings) -> dict[str, Any]:
     """The scheduled leak for ``cycles`` periods; per-release delays and false events."""
@@ -87,22 +148,43 @@ def run_schedule(intervals: list[list[float]], period_s: float, cycles: int, vox
 
 
 def run_no_release(minutes: float, walker_s: float, drift_s: float, every: int, seed: int,
-                   settings: DetectionSettings) -> dict[str, Any]:
+                   settings: DetectionSettings, fields: Path | None = None) -> dict[str, Any]:
     """The no-release scene for ``minutes`` of scene time; every event is false."""
     n = round(minutes * 60.0 * FIELD_FRAME_RATE_HZ)
     cfg = preset_no_release(n_frames=n, walker_period_s=walker_s, drift_period_s=drift_s,
                             seed=seed)
+    info = {"scene": "no_release", "minutes": minutes, "walker_period_s": walker_s,
+            "drift_period_s": drift_s, "every": every, "seed": seed,
+            "processing_hz": FIELD_FRAME_RATE_HZ / every}
+    recorder = None if fields is None else FieldRecorder(fields, info)
     t0 = time.perf_counter()
     report = detect_frames(_progress(simulated_frames(cfg, every), 60.0), cfg.meta(),
-                           settings, every, on_event=_print_event)
+                           settings, every, on_event=_print_event, on_fields=recorder)
+    if recorder is not None:
+        recorder.flush()
+    return _no_release_result(info, report, time.perf_counter() - t0)
+
+
+def _no_release_result(info: dict[str, Any], report: dict[str, Any], wall_s: float
+                       ) -> dict[str, Any]:
     per_frame = report.pop("per_frame")
-    return {"scene": "no_release", "minutes": minutes, "walker_period_s": walker_s,
-            "drift_period_s": drift_s, "every": every, "seed": seed,
-            "processing_hz": FIELD_FRAME_RATE_HZ / every,
-            "false_events": len(report["events"]), "triples": len(per_frame),
+    return {**info, "false_events": len(report["events"]), "triples": len(per_frame),
             "gas_triples": report["gas_frames"],
             "positive_triples": sum(p["positive"] for p in per_frame),
-            "report": report, "wall_s": round(time.perf_counter() - t0, 1)}
+            "report": report, "wall_s": round(wall_s, 1)}
+
+
+def replay_no_release(folder: Path, settings: DetectionSettings) -> dict[str, Any]:
+    """The current event logic over a no-release recording of ``--fields`` (its scene time:
+    the triples recorded, also of a run that was stopped)."""
+    info = json.loads((folder / "info.json").read_text())
+    t0 = time.perf_counter()
+    fields = list(read_fields(folder))
+    frames = fields[-1][1] + int(info["every"])
+    report = detect_fields(iter(fields), frames, settings, on_event=_print_event)
+    info = {**info, "minutes": round(frames / FIELD_FRAME_RATE_HZ / 60.0, 2),
+            "replayed_from": str(folder)}
+    return _no_release_result(info, report, time.perf_counter() - t0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -123,11 +205,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="period of the warm person's walk to and fro, s (20: 0.3 m/s)")
     n.add_argument("--drift-s", type=float, default=600.0,
                    help="period of the background drift, s (600)")
-    for q in (s, n):
-        q.add_argument("--every", type=int, default=10,
-                       help="process every N-th triple (10: 3 results/s, the daemon's rate "
-                            "on a 2-core machine)")
-        q.add_argument("--seed", type=int, default=7)
+    n.add_argument("--fields", type=Path,
+                   help="record every triple's gas mask and flow in this new folder "
+                        "(for `replay`)")
+    r = sub.add_parser("replay", help="the event logic over a `no-release --fields` "
+                                      "recording")
+    r.add_argument("fields", type=Path, help="folder written by `no-release --fields`")
+    for q in (s, n, r):
+        if q is not r:
+            q.add_argument("--every", type=int, default=10,
+                           help="process every N-th triple (10: 3 results/s, the daemon's "
+                                "rate on a 2-core machine)")
+            q.add_argument("--seed", type=int, default=7)
         q.add_argument("--min-duration-s", type=float, default=EventConfig().min_duration_s,
                        help="events.min_duration_s (default the config's; the start "
                             "window is at least 1 s longer)")
@@ -147,9 +236,10 @@ def main(argv: list[str] | None = None) -> int:
               f"{out['false_events']}, max delay {out['max_delay_s']} s "
               f"({out['wall_s']} s wall)")
     else:
-        out = run_no_release(args.minutes, args.walker_s, args.drift_s, args.every, args.seed,
-                             settings)
-        print(f"{args.minutes:g} min of no-release scene, {out['triples']} triples at "
+        out = (replay_no_release(args.fields, settings) if args.what == "replay" else
+               run_no_release(args.minutes, args.walker_s, args.drift_s, args.every, args.seed,
+                              settings, args.fields))
+        print(f"{out['minutes']:g} min of no-release scene, {out['triples']} triples at "
               f"{out['processing_hz']:g} Hz: {out['false_events']} false events "
               f"({out['gas_triples']} triples with gas pixels, {out['positive_triples']} "
               f"positive; {out['wall_s']} s wall)")

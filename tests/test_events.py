@@ -154,3 +154,17 @@ def test_source_rule_under_gas_accepts_a_jumping_plume_end_and_rejects_a_moving_
         blob = (xx - (10 + 2.5 * k)) ** 2 + (yy - 60) ** 2 < 12 ** 2
         det.update(evidence_from_fields(k / FPS, k, blob, flow))
     assert det.current is None and not det.finished
+
+
+def test_a_source_that_travels_with_its_flow_starts_no_event() -> None:
+    """Motion as a gas descriptor: a slow warm object whose upstream end moves on at the
+    speed of its own flow (0.5 px per frame, within max_source_shift_px over the start
+    window, so the fixed-source rule alone let it start) raises no event; the same gas with
+    its source fixed at the leak does."""
+    def frames(source_speed: float) -> list[FrameEvidence]:
+        return [FrameEvidence(k / FPS, k, 900, 0.95, (100.0 + source_speed * k, 120.0),
+                              flow_px=(0.5, 0.0)) for k in range(int(6 * FPS))]
+    det, _ = _run(frames(0.5))
+    assert det.finished == []
+    det, _ = _run(frames(0.0))
+    assert len(det.finished) == 1

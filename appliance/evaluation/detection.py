@@ -127,7 +127,8 @@ def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]
 
 
 def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: DetectionSettings,
-                  every: int = 1, on_event: Callable[[str, Any], None] | None = None
+                  every: int = 1, on_event: Callable[[str, Any], None] | None = None,
+                  on_fields: Callable[[float, int, np.ndarray, np.ndarray], None] | None = None
                   ) -> dict[str, Any]:
     """Events in a stream of synthetic stereo frames (``SyntheticFrame``), whole chain.
 
@@ -142,6 +143,9 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
         keeps up at ``frame rate / every`` does (the event logic's windows are in seconds).
     on_event : callable, optional
         ``(kind, LeakEvent)`` at every start and end, as it happens (long runs).
+    on_fields : callable, optional
+        ``(t_s, frame, gas_mask, flow)`` of every processed triple: what the event logic
+        sees, to replay it later with other rules (:func:`detect_fields`).
     """
     from processing.chain import ChainState, StereoGeometry, compute_scene_flow
 
@@ -164,12 +168,34 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
             continue
         res = compute_scene_flow([f.left for f in window], [f.right for f in window],
                                  [f.t_s for f in window], geometry, params, state)
+        if on_fields is not None:
+            on_fields(window[0].t_s, window[0].index, res.gas_mask, res.flow)
         ev = stream(window[0].t_s, window[0].index, res.gas_mask, res.flow)
         evidence.append(ev)
         _feed(det, ev, alarms, on_event)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
     return _report(n, evidence, det, settings.events, alarms)
+
+
+def detect_fields(fields: Iterable[tuple[float, int, np.ndarray, np.ndarray]], frames: int,
+                  settings: DetectionSettings,
+                  on_event: Callable[[str, Any], None] | None = None) -> dict[str, Any]:
+    """Events from recorded per-triple ``(t_s, frame, gas_mask, flow)`` (what
+    :func:`detect_frames` hands ``on_fields``): the event logic alone, replayed over the
+    chain's output of an earlier run (the chain does not depend on the event rules)."""
+    det = LeakDetector(settings.events)
+    stream: EvidenceStream | None = None
+    evidence: list[FrameEvidence] = []
+    alarms: dict[int, tuple[float, int]] = {}
+    for t_s, frame, mask, flow in fields:
+        stream = stream or EvidenceStream(_zones(mask.shape, settings.events))
+        ev = stream(t_s, frame, mask, flow)
+        evidence.append(ev)
+        _feed(det, ev, alarms, on_event)
+    if evidence:
+        det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
+    return _report(frames, evidence, det, settings.events, alarms)
 
 
 def sequence_parameters(meta: dict[str, Any], geometry: Any) -> Any:

@@ -16,6 +16,14 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
   (a leak keeps feeding it; a warm object covers any place only while it passes, its
   uniform middle not even then), and the gas must lie downstream of it along the latest
   flow direction;
+- *a source that does not travel with the gas*: an event does not start while, over the
+  last ``min_duration_s``, the source moved on from one frame to the next by at least
+  :data:`TRANSLATION` of what the flow carried the gas (median over the steps): a rigid
+  warm object translates as a whole, its upstream end with it at the speed of its flow
+  (ratio 1 in the simulated no-release scene, also after it turns round), while a plume's
+  upstream end stays at the leak whatever the gas downstream does (ratio about 0). The
+  paper (Sec. 5.2, 6) names moving objects as its segmentation's failure and motion
+  parameters as descriptors of gas; this is one;
 - *a source in view*: before an event has started, a frame whose upstream end touches the
   image border (within :data:`appliance.runtime.evidence.BORDER_PX`; its source within
   twice that) counts only when its gas covers the candidate's source: gas entering across
@@ -39,11 +47,13 @@ import numpy as np
 
 from appliance.runtime.evidence import (
     COVERAGE_CELL_PX,
+    GAP_S,
     EvidenceStream,
     FrameEvidence,
     Polygon,
     covers,
     evidence_from_fields,
+    moves,
     zone_mask,
 )
 
@@ -88,6 +98,11 @@ class EventConfig:
 
 #: Positive frames whose sources anchor a candidate event (start rule, LeakDetector._stayed).
 ANCHOR_FRAMES = 5
+
+#: Median ratio of a source's step along the flow to the flow's own step (px per frame
+#: interval times the frames between two results) from which the candidate is a translating
+#: object, not a plume (start rule, LeakDetector._translating).
+TRANSLATION = 0.5
 
 #: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
 #: source (one coverage cell around it) held gas, for the event to start.
@@ -187,6 +202,10 @@ class LeakDetector:
         self._coverages: collections.deque[tuple[float, np.ndarray | None]] = (
             collections.deque())
         self._last_resultant: tuple[float, float] | None = None
+        self._last_gas_t: float | None = None
+        # (t, frame, source, mean flow) of the frames with coherent gas while no event is on
+        self._track: collections.deque[
+            tuple[float, int, tuple[float, float], tuple[float, float]]] = collections.deque()
 
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
@@ -266,9 +285,34 @@ class LeakDetector:
         return bool(centroid[0] * self._last_resultant[0]
                     + centroid[1] * self._last_resultant[1] > 0.0)
 
+    def _translating(self, now: float) -> bool:
+        """Whether the gas of the last ``min_duration_s`` moved as a whole: the median, over
+        steps between consecutive frames, of the source's displacement along the mean flow
+        divided by the flow's displacement is at least :data:`TRANSLATION` (module
+        docstring). A median over at least 3 steps: a plume's upstream end that jumps once
+        between two ends of its base, or one frame whose flow is near zero, does not decide.
+        """
+        rows = sorted((r for r in self._track if r[0] >= now - self.cfg.min_duration_s),
+                      key=lambda r: r[1])
+        ratios = []
+        for (_, f0, s0, w0), (_, f1, s1, w1) in itertools.pairwise(rows):
+            w = (0.5 * (w0[0] + w1[0]), 0.5 * (w0[1] + w1[1]))
+            step = (f1 - f0) * (w[0] * w[0] + w[1] * w[1])  # |w|^2 per frame x frames
+            if f1 > f0 and step > 0.0:
+                ratios.append(((s1[0] - s0[0]) * w[0] + (s1[1] - s0[1]) * w[1]) / step)
+        return len(ratios) >= 3 and float(np.median(ratios)) >= TRANSLATION
+
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
         c = self.cfg
+        if ev.gas_pixels >= c.min_gas_pixels and moves(ev):
+            if (self.current is None and self._last_gas_t is not None
+                    and ev.t_s - self._last_gas_t > GAP_S):
+                # gas after a gap is new evidence: a warm object walking out of the view and
+                # back in under the old candidate's source started events with it
+                self._forget_candidate()
+                self._track.clear()
+            self._last_gas_t = max(ev.t_s, self._last_gas_t or ev.t_s)
         pos = self.positive(ev)
         if pos and ev.source_xy is not None and self.current is None:
             self._candidate_sources.append(ev.source_xy)
@@ -285,12 +329,17 @@ class LeakDetector:
             self._coverages.append((ev.t_s, ev.coverage))
             while self._coverages and self._coverages[0][0] < ev.t_s - c.min_duration_s - 1.0:
                 self._coverages.popleft()
+            if (ev.source_xy is not None and ev.flow_px is not None
+                    and ev.gas_pixels >= c.min_gas_pixels and ev.coherence >= c.min_coherence):
+                self._track.append((ev.t_s, ev.frame, ev.source_xy, ev.flow_px))
+            while self._track and self._track[0][0] < ev.t_s - c.min_duration_s - 1.0:
+                self._track.popleft()
         out: list[tuple[str, LeakEvent]] = []
         if self.current is None:
             frac, first = self._fraction(ev.t_s, c.start_window_s)
             if (first is not None and frac >= c.start_fraction
                     and ev.t_s - first >= c.min_duration_s and self._stayed(ev)
-                    and self._persistent(ev.t_s)):
+                    and self._persistent(ev.t_s) and not self._translating(ev.t_s)):
                 start_frame = next(f for t, f, p in self._recent if t == first and p)
                 self.current = LeakEvent(next(self._ids), first, start_frame)
                 self.current.add(ev, pos)

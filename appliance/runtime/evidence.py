@@ -66,6 +66,9 @@ class FrameEvidence:
         3D position of the source, m (camera frame).
     resultant : (float, float) or None
         Mean unit flow direction of the gas pixels (length = coherence).
+    flow_px : (float, float) or None
+        Mean image flow of the gas pixels, px per frame interval (the chain's w_L, Eq. 5):
+        how far the gas moves from one frame to the next.
     on_border : bool
         Some of the most upstream gas pixels lie within :data:`BORDER_PX` of the image's
         edge (the gas enters the view there), or the source within twice that.
@@ -83,6 +86,7 @@ class FrameEvidence:
     wind_m_s: tuple[float, float, float] | None = None
     source_xyz_m: tuple[float, float, float] | None = None
     resultant: tuple[float, float] | None = None
+    flow_px: tuple[float, float] | None = None
     on_border: bool = False
     coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
 
@@ -105,9 +109,25 @@ def covers(coverage: np.ndarray | None, xy: tuple[float, float], cells: int = 1)
 #: Cell size of :attr:`FrameEvidence.coverage`, px (a 320 x 240 frame: 40 x 30 cells).
 COVERAGE_CELL_PX = 8
 
+#: After this long without gas, gas is new evidence, s: its flow direction is averaged
+#: afresh (EvidenceStream) and a candidate event starts afresh (LeakDetector).
+GAP_S = 1.0
+
+#: Gas whose mean flow is slower than this does not move, px per frame interval: it says
+#: nothing about a direction and does not end a gap (GAP_S). The no-release scene gave
+#: frames of 5000-17000 "gas" pixels at 0.04 px per frame (a glitch of the chain; the
+#: walker moves at 1.4, the simulated plume at 6).
+MIN_FLOW_PX = 0.2
+
 #: Gas this close to the image's edge among a frame's most upstream pixels means it enters
 #: the view there, px (start rule).
 BORDER_PX = 8
+
+
+def moves(ev: FrameEvidence) -> bool:
+    """Whether the frame's gas moves (mean flow at least :data:`MIN_FLOW_PX`); evidence
+    without a mean flow counts as moving."""
+    return ev.flow_px is None or float(np.hypot(*ev.flow_px)) >= MIN_FLOW_PX
 
 
 def _coverage(mask: np.ndarray) -> np.ndarray:
@@ -141,6 +161,7 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
         return FrameEvidence(t_s, frame, len(xs), 0.0, **extra)  # type: ignore[arg-type]
     unit = f[moving] / mag[moving, None]
     resultant = unit.mean(axis=0)
+    mean_flow = f.mean(axis=0)
     coherence = float(np.hypot(*resultant))
     d = (np.asarray(direction, np.float64) if direction is not None
          else resultant / max(coherence, 1e-12))
@@ -157,6 +178,7 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
                      < 2 * BORDER_PX)
     return FrameEvidence(t_s, frame, len(xs), coherence, source,  # type: ignore[arg-type]
                          resultant=(float(resultant[0]), float(resultant[1])),
+                         flow_px=(float(mean_flow[0]), float(mean_flow[1])),
                          on_border=on_border, coverage=_coverage(mask), **extra)
 
 
@@ -176,23 +198,34 @@ class EvidenceStream:
         From :func:`zone_mask`.
     tau_s : float
         Time constant of the exponential average of the flow resultant, s.
+    gap_s : float
+        After this long without gas the average restarts from the next frame's own
+        direction, s.
     """
 
-    def __init__(self, zones: np.ndarray | None = None, tau_s: float = 3.0) -> None:
+    def __init__(self, zones: np.ndarray | None = None, tau_s: float = 3.0,
+                 gap_s: float = GAP_S) -> None:
         self.zones = zones
         self.tau_s = tau_s
+        self.gap_s = gap_s
         self._mean: np.ndarray | None = None
         self._t: float | None = None
 
     def __call__(self, t_s: float, frame: int, gas_mask: np.ndarray, flow: np.ndarray,
                  **extra: object) -> FrameEvidence:
         """Evidence of one frame (frames may arrive slightly out of order)."""
+        if self._t is not None and t_s - self._t > self.gap_s:
+            # after ``gap_s`` without gas the average belongs to gas that has gone: a warm
+            # object coming back into view along it had its "source" at its leading end,
+            # inside the view, and then pinned to the border under its own gas (the border
+            # rule let it start events in the no-release scene)
+            self._mean, self._t = None, None
         direction = None
         if self._mean is not None and np.hypot(*self._mean) > 1e-6:
             direction = tuple(self._mean / np.hypot(*self._mean))
         ev = evidence_from_fields(t_s, frame, gas_mask, flow, self.zones,
                                   direction=direction, **extra)  # type: ignore[arg-type]
-        if ev.resultant is not None:
+        if ev.resultant is not None and moves(ev):
             r = np.asarray(ev.resultant)
             if self._mean is None or self._t is None:
                 self._mean, self._t = r, t_s
