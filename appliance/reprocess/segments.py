@@ -132,6 +132,7 @@ def run_segments(
     estimator = None if emission is None else emission.estimator(geometry)
     t_start = time.monotonic()
     t_first: int | None = None
+    t_pace = t_start
     for index, pair in _until(pairs, owner.last_needed):
         if owner.records_pair(index):
             publisher.record_pair(index, pair)
@@ -144,8 +145,12 @@ def run_segments(
             estimator = None if emission is None else emission.estimator(geometry)
             publisher.restart_rate_window()
         if pace:
-            t_first = pair.time_ns if t_first is None else t_first
-            ahead = (pair.time_ns - t_first) / 1e9 - (time.monotonic() - t_start)
+            # The clock starts with the first triple, not before the set-up (loading the
+            # compiled kernels can take seconds; counted in, the first seconds of the
+            # recording would then run unpaced).
+            if t_first is None:
+                t_first, t_pace = pair.time_ns, time.monotonic()
+            ahead = (pair.time_ns - t_first) / 1e9 - (time.monotonic() - t_pace)
             if ahead > 0:
                 time.sleep(ahead)
         trio = [p for _, p in window]
