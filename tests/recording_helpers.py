@@ -89,6 +89,15 @@ def cut_recording(src: Path, dst: Path, keep_fraction: float) -> Path:
     return dst
 
 
+def _default_sigint() -> None:
+    """In the child before exec: Ctrl-C as in a shell. A child inherits an ignored or
+    blocked SIGINT from the test process (libraries loaded by earlier tests may set either
+    at the C level), and Python then never raises KeyboardInterrupt: the full suite saw
+    children finish their work with the interrupt ignored, alone they passed."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def interrupt_cli(args: Sequence[str], ready: Callable[[], bool], *, after_s: float = 0.0,
                   timeout_s: float = 120.0) -> tuple[int, str]:
     """Run ``python -m appliance ARGS`` from this checkout, Ctrl-C it once ``ready()``.
@@ -99,7 +108,8 @@ def interrupt_cli(args: Sequence[str], ready: Callable[[], bool], *, after_s: fl
     root = Path(__file__).resolve().parent.parent
     env = {**os.environ, "PYTHONPATH": str(root)}
     proc = subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=root, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=_default_sigint)
     try:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline and not ready():
