@@ -200,13 +200,16 @@ def test_wall_clock_step_does_not_touch_pairing(scene_cache: Path, tmp_path: Pat
     app = make_app(scene_cache, tmp_path / "rec")
     c = app.counters
     real_ns, real_s = time.time_ns, time.time
+    unpaired: dict[str, dict[str, int]] = {}
 
     def scenario() -> None:
         wait_for(app, lambda: c.pairs > 30, "pairs", 120)
+        unpaired["before"] = dict(c.unpaired)
         monkeypatch.setattr(time, "time_ns", lambda: real_ns() + 3600 * 10**9)
         monkeypatch.setattr(time, "time", lambda: real_s() + 3600.0)
         pairs = c.pairs
         wait_for(app, lambda: c.pairs > pairs + 60, "pairs after the step")
+        unpaired["after"] = dict(c.unpaired)
 
     assert run_with(app, scenario)["code"] == 0
     (path,) = closed_files(tmp_path / "rec")
@@ -214,10 +217,14 @@ def test_wall_clock_step_does_not_touch_pairing(scene_cache: Path, tmp_path: Pat
     pairs = [m for _t, m in msgs]
     steps = [b["t_wall_ns"] - a["t_wall_ns"] for a, b in itertools.pairwise(pairs)]
     print(f"wall clock +1 h: {len(pairs)} pairs, largest wall-stamp step "
-          f"{max(steps) / 1e6:.1f} ms, unpaired {c.unpaired}")
+          f"{max(steps) / 1e6:.1f} ms, unpaired {unpaired}")
     assert [p["pair_index"] for p in pairs] == list(range(len(pairs)))
     assert max(steps) < 0.2e9 and min(steps) > 0
-    assert c.frames_lost == {"left": 0, "right": 0} and c.unpaired == {"left": 0, "right": 0}
+    assert c.frames_lost == {"left": 0, "right": 0}
+    # One frame may be cut off when the cameras start a few ms apart (the CI run of session 4
+    # had one); across the step itself no frame may lose its partner.
+    assert unpaired["after"] == unpaired["before"]
+    assert sum(unpaired["before"].values()) <= 1
 
 
 def test_anemometer_port_vanishes_and_returns(scene_cache: Path, tmp_path: Path) -> None:
