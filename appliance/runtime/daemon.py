@@ -49,6 +49,8 @@ from processing.chain import ChainParameters, StereoGeometry
 log = logging.getLogger("ogiflow")
 
 SIDES = ("left", "right")
+#: Results in flight from the workers to the daemon (see :meth:`Appliance._start_processing`).
+RESULTS_QUEUE_SIZE = 8
 
 
 class Appliance:
@@ -271,7 +273,10 @@ class Appliance:
         self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
         self._mp = mp.get_context("spawn")
-        self._results = self._mp.Queue(maxsize=64)
+        # About half a second of results: each carries ~2.5 MB of fields, and a full queue
+        # is held in the workers' memory (64 made 130-160 MB steps when the daemon was
+        # starved of CPU). A result not taken within 1 s is counted as a skipped triple.
+        self._results = self._mp.Queue(maxsize=RESULTS_QUEUE_SIZE)
         self._stop_workers = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
         # The anemometer's sonic temperature (K) for the workers' gas temperature.

@@ -14,6 +14,13 @@ Still needed after the solvers moved to preallocated workspaces
 (:mod:`processing.variational`): without these settings a warm triple of the chain still
 took 3700 minor page faults and 8 ms of system time (measured, issue 15), from the
 full-size numpy and OpenCV temporaries around the solvers.
+
+The price is that the process's resident memory is the high-water mark of its heap: a
+burst (a cold start's full pyramid, results queued while the daemon was starved of CPU)
+stayed resident for the rest of the run, measured as steps of 130-160 MB in the workers of
+the session-4 soak. :func:`release_freed_memory`, called by the workers once a minute,
+returns what is free to the kernel; the next triple faults its pages in again (a few
+milliseconds once a minute).
 """
 
 from __future__ import annotations
@@ -27,20 +34,37 @@ _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
 
 
+def _libc() -> ctypes.CDLL | None:
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return None
+    try:
+        return ctypes.CDLL(name)
+    except OSError:
+        return None
+
+
 def keep_freed_memory(threshold_bytes: int = MMAP_THRESHOLD_BYTES) -> bool:
     """Raise glibc's mmap and trim thresholds; False where that is not possible.
 
     Safe to call more than once; a no-op on C libraries other than glibc.
     """
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return False
-    try:
-        libc = ctypes.CDLL(name)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    libc = _libc()
+    mallopt = getattr(libc, "mallopt", None)
+    if mallopt is None:
         return False
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
     ok = mallopt(_M_MMAP_THRESHOLD, int(threshold_bytes)) == 1
     return bool(mallopt(_M_TRIM_THRESHOLD, int(threshold_bytes)) == 1 and ok)
+
+
+def release_freed_memory() -> bool:
+    """Return the heap's free memory to the kernel (glibc ``malloc_trim(0)``, every arena);
+    False where that is not possible (not glibc) or nothing was released."""
+    trim = getattr(_libc(), "malloc_trim", None)
+    if trim is None:
+        return False
+    trim.argtypes = (ctypes.c_size_t,)
+    trim.restype = ctypes.c_int
+    return bool(trim(0) == 1)

@@ -142,6 +142,9 @@ class EmissionSetup:
 
 
 #: The rate of a frame when the cameras have no radiometric calibration.
+#: Seconds between two returns of the worker's free heap to the kernel
+#: (:func:`appliance.runtime.tuning.release_freed_memory`).
+TRIM_EVERY_S = 60.0
 NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
 
 
@@ -250,7 +253,7 @@ def worker_main(
     """
     from appliance.runtime.ring import PairRing
     from appliance.runtime.shiftshare import SharedShiftMemo
-    from appliance.runtime.tuning import keep_freed_memory
+    from appliance.runtime.tuning import keep_freed_memory, release_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()
@@ -264,6 +267,8 @@ def worker_main(
     # phase and take the newest window.
     max_lag = ring.capacity // 2 if n_workers <= 2 else None
     torn = 0
+    undelivered = 0  # results the daemon did not take within a second (counted as skipped)
+    trimmed_at = time.monotonic()
     estimator = None if emission is None else emission.estimator(geometry)
     own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
@@ -286,10 +291,10 @@ def worker_main(
                 pair_indices=tuple(int(m["pair_index"]) for m in meta),  # type: ignore[arg-type]
                 t_mono_ns=t_mono,  # type: ignore[arg-type]
                 t_wall_ns=int(meta[1]["t_wall_ns"]),
-                skipped=skipped + torn,
+                skipped=skipped + torn + undelivered,
                 done_mono_ns=0,
             )
-            torn = 0
+            torn = undelivered = 0
             try:
                 res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
                 pack_result(res, base, raw_left=left[0])
@@ -308,7 +313,10 @@ def worker_main(
             try:
                 results.put(base, timeout=1.0)
             except queue.Full:
-                pass
+                undelivered += 1
+            if time.monotonic() - trimmed_at >= TRIM_EVERY_S:
+                release_freed_memory()
+                trimmed_at = time.monotonic()
     finally:
         ring.close()
 
