@@ -261,6 +261,7 @@ def compute_scene_flow(
     t = lap("preprocess", t)
 
     flags: list[str] = []
+    blanked = None
     if params.depth_gate:
         gate = out_of_band_motion(pl.diff0, pr.diff0, d_min=params.d0,
                                   d_max=params.d0 + params.sgm_num_disparities,
@@ -268,6 +269,7 @@ def compute_scene_flow(
         if gate.fraction > 0:
             flags.append("object_motion_rejected")
             pl, pr, scale = apply_gate(pl, pr, gate, scale)
+            blanked = (gate.left, gate.right)
         t = lap("depth_gate", t)
     flags.extend(preprocess_flags(pl, pr))
     # The scale this triple asks for: once, for the scene-change test and the tracker.
@@ -302,11 +304,18 @@ def compute_scene_flow(
     else:
         init_d = init_dd = None
     t = lap("disparity_init", t)
+    options = solver_options(params.disparity_options, params.warm_disparity_options,
+                             warm is not None)
+    if UNTRUSTED_FOR_CONSTANT_MODE.intersection(flags):
+        # Left-over jitter differs between the cameras and noise without gas contrast has
+        # its own minimum: both are a constant d' offset, which the constant-mode step
+        # would fit (measured: V_Z 20-60 m/s with a rejected 0.5 px shift, 2-4 m/s on a
+        # 3 K plume under 0.03 K noise). The plain solver keeps d' near its start there.
+        options["constant_mode"] = False
     d, dd = joint_disparity(
         pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow, gamma1=params.gamma1,
         gamma2=params.gamma2, d0=params.d0, initial_disparity=init_d, initial_change=init_dd,
-        **solver_options(params.disparity_options, params.warm_disparity_options,
-                         warm is not None))
+        blanked=blanked, **options)
     if params.temporal_weight > 0:
         # The previous triple's (smoothed) d' carried along the gas's paths; at stride 2
         # the previous triple is two frames back, so the paths are twice the flow.
@@ -346,6 +355,10 @@ def compute_scene_flow(
         warm=warm is not None,
     )
 
+
+#: Flags of a triple whose data do not fix the constant part of d and d' (see
+#: :func:`processing.disparity.constant_mode_step`).
+UNTRUSTED_FOR_CONSTANT_MODE = frozenset({"registration_rejected", "low_contrast"})
 
 #: A triple whose differential images ask for this many times the tracked normalisation
 #: scale is a scene change, not gas motion (measured: the simulated scene's loop jump asked

@@ -46,6 +46,75 @@ from processing.validation import (
     check_same_shape,
 )
 
+#: Largest offset of d or d' in one constant-mode step, px (of the level).
+MAX_CONSTANT_STEP_PX = 0.5
+
+
+@numba.njit(cache=True, fastmath=True)
+def constant_mode_step(
+    coefs: tuple[np.ndarray, np.ndarray],
+    a11: tuple[np.ndarray, np.ndarray],
+    a22: tuple[np.ndarray, np.ndarray],
+    ds: tuple[np.ndarray, np.ndarray],
+    ps: tuple[np.ndarray, np.ndarray],
+) -> None:
+    """Add to d and d' the constant offsets that minimise the lagged quadratic energy.
+
+    The smoothness terms of Eq. 6 do not change when a constant is added to d or d', so
+    over those two directions the linearised energy is the data terms' alone, and its
+    minimum is the solution of the 2x2 system of the summed equations::
+
+        [sum A11  sum A12] [delta_d ]   [sum (r1 - A11 d - A12 d')]
+        [sum A12  sum A22] [delta_d'] = [sum (r2 - A12 d - A22 d')]
+
+    (the edge weights are symmetric, so the diffusion parts of the equations sum to zero).
+    Red-black SOR removes that error mode slowest of all: d' is stiffly smooth (gamma2
+    psi' reaches gamma2 / eps) and constrained by data only on the gas, so the field kept
+    much of its starting value (measured on a field scene: -0.28, -0.31, -0.34 px from
+    starts 0, -0.28, -0.5; on a plane textured over a tenth of the image 0.77 px for
+    1.19 px). d and d' are shifted together: a d' step alone, with d off by a pixel where
+    the gas's texture was blanked, moved d' the wrong way.
+
+    Parameters
+    ----------
+    coefs : (ndarray, ndarray), shape (13, H+2, W2+2)
+        The colours' systems (planes of :mod:`processing.redblack`; A12, R1, R2 are read).
+    a11, a22 : (ndarray, ndarray), shape (H+2, W2+2)
+        Data parts of the diagonals.
+    ds, ps : (ndarray, ndarray), shape (H+2, W2+2)
+        d and d' in compact layout, updated in place (interior only; the halo stays 0).
+    """
+    s11 = s12 = s22 = b1 = b2 = 0.0
+    for c in range(2):
+        coef = coefs[c]
+        h = coef.shape[1] - 1
+        w = coef.shape[2] - 1
+        for y in range(1, h):
+            ra11, ra22, dv, pv = a11[c][y], a22[c][y], ds[c][y], ps[c][y]
+            ra12, rr1, rr2 = coef[redblack.A12, y], coef[redblack.R1, y], coef[redblack.R2, y]
+            for x in range(1, w):
+                s11 += ra11[x]
+                s12 += ra12[x]
+                s22 += ra22[x]
+                b1 += rr1[x] - ra11[x] * dv[x] - ra12[x] * pv[x]
+                b2 += rr2[x] - ra12[x] * dv[x] - ra22[x] * pv[x]
+    det = s11 * s22 - s12 * s12
+    if s11 <= 0.0 or s22 <= 0.0 or det <= 1e-3 * s11 * s22:
+        return  # no data at all, or d and d' not separable: nothing to fix
+    # No further than the linearisation holds (the data terms are linear in d, d' about
+    # the warp only within about a pixel); a far minimum is reached over several steps.
+    delta_d = min(max((s22 * b1 - s12 * b2) / det, -MAX_CONSTANT_STEP_PX), MAX_CONSTANT_STEP_PX)
+    delta_p = min(max((s11 * b2 - s12 * b1) / det, -MAX_CONSTANT_STEP_PX), MAX_CONSTANT_STEP_PX)
+    fd = np.float32(delta_d)
+    fp = np.float32(delta_p)
+    for c in range(2):
+        h = ds[c].shape[0] - 1
+        w = ds[c].shape[1] - 1
+        for y in range(1, h):
+            for x in range(1, w):
+                ds[c][y, x] += fd
+                ps[c][y, x] += fp
+
 
 @numba.njit(cache=True)
 def _lagged_iterations(
@@ -70,6 +139,7 @@ def _lagged_iterations(
     n_inner: int,
     n_sor: int,
     omega: float,
+    constant_mode: bool,
 ) -> None:
     """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (d, dp) in place.
 
@@ -97,6 +167,8 @@ def _lagged_iterations(
                 a22[c], coef[redblack.R1], coef[redblack.R2])
             lagged.finish_diagonals(coef, a11[c], a22[c])
         redblack.solve_sor(coefs[0], coefs[1], ds[0], ds[1], ps[0], ps[1], n_sor, omega)
+        if constant_mode:
+            constant_mode_step(coefs, a11, a22, ds, ps)
     redblack.merge_field(ds[0], ds[1], d)
     redblack.merge_field(ps[0], ps[1], dp)
 
@@ -118,8 +190,14 @@ def _level_disparity(
     n_inner: int,
     n_sor: int,
     omega: float,
+    constant_mode: bool = True,
+    usable: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> None:
-    """Refine (d, dp) in place at one pyramid level (outer warps x lagged FP x SOR)."""
+    """Refine (d, dp) in place at one pyramid level (outer warps x lagged FP x SOR).
+
+    ``usable``: (left, right) float32 maps, 1 where the image carries information, 0 where
+    it was blanked (:func:`usable_maps`); a data term with a sample on a blanked pixel is
+    dropped."""
     xx, yy = derivatives.pixel_grid(il0.shape)
     l0x = derivatives.dx(il0)
     # Catmull-Rom warps (not OpenCV's a = -0.75 cubic, whose phase-dependent bias would
@@ -137,10 +215,78 @@ def _level_disparity(
         r1w, r1wx = warp_dx(ir1, mx1, fy)
         disparity_terms.warp_residuals(il0, l0x, l1w, l1wx, m_l1, r0w, r0wx, r1w, r1wx, mx0,
                                        mx1, fy, e1, e3, e4, g0, g1, m1, m3, m4)
+        if usable is not None:
+            drop_blanked_terms(usable, yy, (fx, fy), mx0, mx1, (m1, m3, m4))
         ws = variational.workspace(il0.shape)
         _lagged_iterations((e1, e3, e4, g0, g1, m1, m3, m4), d, dp, ws.inputs, ws.x1, ws.x2,
                            ws.x1_0, ws.x2_0, ws.coefs, ws.masks, ws.a11, ws.a22, ws.psi1,
-                           ws.psi2, ws.s2, gamma1, gamma2, eps, n_inner, n_sor, omega)
+                           ws.psi2, ws.s2, gamma1, gamma2, eps, n_inner, n_sor, omega,
+                           constant_mode)
+
+
+def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
+                margin_px: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Float32 (left, right) maps of one pyramid level: 1 where the image carries
+    information, 0 on blanked pixels and within ``margin_px`` (level px) of them.
+
+    Blanked pixels (the depth gate's, :mod:`processing.depth_gate`) hold a constant "no
+    change" in both differential images; their border is a static edge that matches with
+    w = 0 and d' = 0, and through the smoothness of d' (gamma2) it pulled the gas's d' -
+    nearly constant over the image - towards 0 (measured: -0.02 px for -0.22 px, V_Z 0.1
+    for 0.9 m/s). The margin covers the pre-smoothing and the derivative stencils; a
+    coarse pixel is unusable when any fine pixel under it is blanked.
+
+    Parameters
+    ----------
+    blanked : (ndarray, ndarray), shape (H, W), bool
+        Blanked pixels of the left and the right view (same for t0 and t1).
+    shape : (int, int)
+        The level's (rows, cols).
+    margin_px : int
+        Extra unusable border at the level's resolution, px.
+    """
+    k = 2 * margin_px + 1
+    kernel = np.ones((k, k), np.uint8)
+    out = []
+    for b in blanked:
+        frac = cv2.resize(b.astype(np.float32), (shape[1], shape[0]),
+                          interpolation=cv2.INTER_AREA)
+        bad = cv2.dilate((frac > 1e-3).astype(np.uint8), kernel)
+        out.append(np.ascontiguousarray(1.0 - bad, dtype=np.float32))
+    return out[0], out[1]
+
+
+def _sample_nearest(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``a`` at the rounded positions (x, y), clamped to the image (outside is masked by
+    the inside tests of the data terms anyway)."""
+    h, w = a.shape
+    xi = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
+    yi = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
+    return a[yi, xi]
+
+
+def drop_blanked_terms(usable: tuple[np.ndarray, np.ndarray], rows: np.ndarray,
+                       flow_pos: tuple[np.ndarray, np.ndarray], mx0: np.ndarray,
+                       mx1: np.ndarray, masks: tuple[np.ndarray, np.ndarray, np.ndarray]
+                       ) -> None:
+    """Zero the data-term masks (m1, m3, m4) in place where a term samples a blanked pixel.
+
+    ``rows``: the y coordinate of every pixel, (H, W); ``flow_pos``: x + w; ``mx0``,
+    ``mx1``: the right images' sample columns at t0 and t1 (all px, this level).
+
+    E1 samples I_L(x) and I_R(x - d); E3 I_R(x - d) and I_R(x + w - d - d'); E4 the latter
+    and I_L(x + w) (Eq. 3a, c, d). Positions are those of the current warp.
+    """
+    ok_l, ok_r = usable
+    fx, fy = flow_pos
+    l0 = ok_l
+    l1 = _sample_nearest(ok_l, fx, fy)
+    r0 = _sample_nearest(ok_r, mx0, rows)
+    r1 = _sample_nearest(ok_r, mx1, fy)
+    m1, m3, m4 = masks
+    m1 *= l0 * r0
+    m3 *= r0 * r1
+    m4 *= r1 * l1
 
 
 def joint_disparity(
@@ -166,6 +312,8 @@ def joint_disparity(
     n_sor: int = 10,
     omega: float = 1.95,
     presmooth_sigma: float = 0.6,
+    constant_mode: bool = True,
+    blanked: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity d_L and disparity change d'_L of the left view by minimising Eq. 6.
 
@@ -221,6 +369,16 @@ def joint_disparity(
         equal cost).
     presmooth_sigma : float
         Gaussian pre-smoothing of the four images in px (0 disables).
+    constant_mode : bool
+        After every SOR solve, shift d and d' by the constants that minimise the
+        linearised energy (:func:`constant_mode_step`; beyond the paper: it changes only
+        how fast the solver gets to the minimum of Eq. 6, not the minimum). False
+        reproduces the plain solver.
+    blanked : (ndarray, ndarray), shape (H, W), bool, optional
+        Pixels of the left and the right view that were blanked to "no change" in both
+        differential images (the depth gate's). Data terms that sample them or their
+        border are dropped, so d and d' there come from the smoothness terms alone
+        (:func:`usable_maps`).
 
     Returns
     -------
@@ -259,6 +417,10 @@ def joint_disparity(
                               n_warps=n_warps, n_inner=n_inner, n_sor=n_sor,
                               n_warps_finest=n_warps_finest, n_inner_finest=n_inner_finest,
                               min_level_size=min_level_size)
+    if blanked is not None:
+        for b, name in zip(blanked, ("blanked left", "blanked right"), strict=True):
+            if np.shape(b) != shape:
+                raise ValueError(f"{name}: shape {np.shape(b)}, expected {shape}")
     init = None
     if initial_disparity is not None:
         init = as_float_image(initial_disparity, "initial_disparity")
@@ -290,11 +452,13 @@ def joint_disparity(
         v = np.ascontiguousarray(wl[..., 1])
         dl, dpl = (np.array(f, np.float32, copy=True) for f in fields)
         finest = level == 0
+        usable = None if blanked is None else usable_maps(blanked, lshape)
         _level_disparity(*(p[level] for p in pyrs), u, v, dl, dpl, gamma1=gamma1,
                          gamma2=gamma2, eps=eps,
                          n_warps=n_warps_finest if finest else n_warps,
                          n_inner=n_inner_finest if finest else n_inner,
-                         n_sor=n_sor, omega=omega)
+                         n_sor=n_sor, omega=omega, constant_mode=constant_mode,
+                         usable=usable)
         return dl, dpl
 
     d, dp = variational.coarse_to_fine(shapes, (d, dp), solve_level)

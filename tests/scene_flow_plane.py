@@ -68,10 +68,24 @@ class PlaneScene:
         return S_PX * B_M / (self.z0 + self.velocity[2] * self.dt) - self.d
 
 
+def patch(tex: np.ndarray, radius_m: float) -> np.ndarray:
+    """``tex`` kept only within ``radius_m`` of the plane's centre (0.5 elsewhere, a 3 cm
+    soft edge): texture on part of the image only, as a gas cloud has."""
+    h, w = TEX_SHAPE
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = np.hypot((xx - w / 2) * TEXEL_M, (yy - h / 2) * TEXEL_M)
+    window = np.clip((radius_m - r) / 0.03, 0.0, 1.0).astype(np.float32)
+    return (0.5 + (tex - 0.5) * window).astype(np.float32)
+
+
 def moving_plane(z0: float = 2.0, velocity: tuple[float, float, float] = (0.6, -0.3, -0.9),
-                 dt: float = 1 / 30, seed: int = 0) -> PlaneScene:
-    """Both cameras at t0 and t1 for the plane at ``z0`` moving with ``velocity``."""
+                 dt: float = 1 / 30, seed: int = 0,
+                 patch_radius_m: float | None = None) -> PlaneScene:
+    """Both cameras at t0 and t1 for the plane at ``z0`` moving with ``velocity``
+    (textured only within ``patch_radius_m`` of its centre when given, see :func:`patch`)."""
     tex = texture(seed)
+    if patch_radius_m is not None:
+        tex = patch(tex, patch_radius_m)
     vel = np.asarray(velocity, dtype=np.float64)
     z1 = z0 + vel[2] * dt
     s1 = (vel[0] * dt, vel[1] * dt)
