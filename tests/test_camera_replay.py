@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 from pathlib import Path
 
@@ -26,14 +27,19 @@ def _texture(k: int, shape=(240, 320), dtype=np.uint16) -> np.ndarray:
     return rng.integers(0, hi, shape).astype(dtype)
 
 
-def _drain(cam, timeout: float = 2.0) -> list[Frame]:
+def _grab_all(cam, timeout: float = 2.0) -> list[Frame]:
+    """Every frame of an opened camera, up to its end of stream."""
     frames = []
+    while True:
+        try:
+            frames.append(cam.grab(timeout))
+        except EndOfStream:
+            return frames
+
+
+def _drain(cam, timeout: float = 2.0) -> list[Frame]:
     with cam:
-        while True:
-            try:
-                frames.append(cam.grab(timeout))
-            except EndOfStream:
-                return frames
+        return _grab_all(cam, timeout)
 
 
 @pytest.fixture
@@ -87,7 +93,12 @@ def test_two_folders_replayed_fast_pair_frame_by_frame(tmp_path: Path) -> None:
     }
     period = round(1e9 / 30)
     pairer: StereoPairer = StereoPairer(period)
-    frames = {s: _drain(c) for s, c in cams.items()}
+    # Both cameras start before either is read: draining one first moved the other's start
+    # (and so its nominal timeline) by the reading time, half a period on a loaded machine.
+    with contextlib.ExitStack() as stack:
+        for c in cams.values():
+            stack.enter_context(c)
+        frames = {s: _grab_all(c) for s, c in cams.items()}
     clocks = {s: ClockModel() for s in cams}
     pairs = []
     # replayed fast, each camera stamps its nominal timeline from its own start(); the two
