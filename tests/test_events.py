@@ -168,3 +168,33 @@ def test_a_source_that_travels_with_its_flow_starts_no_event() -> None:
     assert det.finished == []
     det, _ = _run(frames(0.0))
     assert len(det.finished) == 1
+
+
+def test_a_long_event_keeps_constant_size_and_exact_statistics() -> None:
+    # A leak that lasts until it is repaired: weeks of results. The event keeps running
+    # sums and a bounded source window, not a list per result (which grew the daemon by
+    # tens of MB an hour in a soak with the simulated leak on).
+    from appliance.runtime.events import SOURCE_WINDOW, LeakEvent
+
+    rng = np.random.default_rng(3)
+    ev = LeakEvent(id=1, start_t_s=0.0, start_frame=0)
+    rates, vels, cohs = [], [], []
+    for k in range(20_000):
+        rate = float(rng.uniform(1.0, 3.0))
+        vel = tuple(float(x) for x in rng.normal(0.0, 1.0, 3))
+        coh = float(rng.uniform(0.5, 1.0))
+        positive = k % 4 != 0
+        ev.add(FrameEvidence(k / FPS, k, 900, coh, (float(k % 300), 10.0), rate_g_s=rate,
+                             velocity_m_s=vel, wind_m_s=vel), positive)
+        if positive:
+            rates.append(rate)
+            vels.append(vel)
+            cohs.append(coh)
+    assert len(ev._sources) == SOURCE_WINDOW
+    assert not any(isinstance(v, list) for v in vars(ev).values())
+    assert ev.mean_rate_g_s == pytest.approx(np.mean(rates), rel=1e-9)
+    assert ev.peak_rate_g_s == pytest.approx(max(rates))
+    assert ev.mean_velocity_m_s == pytest.approx(tuple(np.mean(vels, axis=0)), rel=1e-9)
+    assert ev.mean_wind_m_s == pytest.approx(tuple(np.mean(vels, axis=0)), rel=1e-9)
+    assert ev.confidence == pytest.approx(len(cohs) / 20_000 * np.mean(cohs), rel=1e-9)
+    assert ev.frames == 20_000 and ev.positive_frames == len(rates)
