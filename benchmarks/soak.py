@@ -10,6 +10,11 @@ last health snapshot of the recording. It reports per process the RSS slope afte
 ``soak.png`` into ``--out``.
 
     python benchmarks/soak.py --minutes 60 --browser-at 20 --browser-minutes 10
+    python benchmarks/soak.py --minutes 62 --warmup-min 12 --browser-at 4 36 --browser-minutes 8
+
+Several ``--browser-at`` minutes connect a fresh browser each time: a first connection during
+warm-up pays the one-time costs (the viewer server loading the web viewer), a second one in
+the measured window shows whether every connection leaves memory behind.
 
 Needs psutil and matplotlib (``pip install 'ogiflow[bench]'``); the browser needs Debian's
 ``chromium`` and playwright (same extra).
@@ -83,26 +88,28 @@ def slope_mb_per_h(t_s: np.ndarray, rss_mb: np.ndarray) -> float | None:
     return float(np.polyfit(t_s / 3600.0, rss_mb, 1)[0])
 
 
-def browse(stop: threading.Event, start_s: float, minutes: float, page_url: str,
+def browse(stop: threading.Event, starts_s: list[float], minutes: float, page_url: str,
            log: list[str]) -> None:
-    """Open the live view in headless Chromium from ``start_s`` for ``minutes``."""
+    """Open the live view in a fresh headless Chromium at each of ``starts_s`` (seconds
+    from the start, ascending) for ``minutes`` each."""
     t_start = time.monotonic()
-    if stop.wait(start_s):
-        return
     try:
         from playwright.sync_api import sync_playwright
     except ImportError:
         log.append("browser: playwright not installed; skipped")
         return
-    with sync_playwright() as pw:
-        browser = pw.chromium.launch(executable_path=shutil.which("chromium") or
-                                     "/usr/bin/chromium", args=CHROMIUM_ARGS)
-        page = browser.new_page(viewport={"width": 1280, "height": 800})
-        page.goto(page_url, timeout=120_000)
-        log.append(f"browser: page loaded at {time.monotonic() - t_start:.0f} s")
-        stop.wait(minutes * 60.0)
-        browser.close()
-        log.append(f"browser: closed at {time.monotonic() - t_start:.0f} s")
+    for start_s in starts_s:
+        if stop.wait(max(0.0, start_s - (time.monotonic() - t_start))):
+            return
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=shutil.which("chromium") or
+                                         "/usr/bin/chromium", args=CHROMIUM_ARGS)
+            page = browser.new_page(viewport={"width": 1280, "height": 800})
+            page.goto(page_url, timeout=120_000)
+            log.append(f"browser: page loaded at {time.monotonic() - t_start:.0f} s")
+            stop.wait(minutes * 60.0)
+            browser.close()
+            log.append(f"browser: closed at {time.monotonic() - t_start:.0f} s")
 
 
 def last_health(rec_dir: Path) -> dict[str, Any] | None:
@@ -123,7 +130,7 @@ def last_health(rec_dir: Path) -> dict[str, Any] | None:
 
 
 def plot(rows: list[tuple[float, str, int, float]], path: Path, title: str,
-         browser_window: tuple[float, float] | None) -> None:
+         browser_windows: list[tuple[float, float]]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -133,8 +140,8 @@ def plot(rows: list[tuple[float, str, int, float]], path: Path, title: str,
     for key in sorted({(r, p) for _t, r, p, _m in rows}):
         pts = [(t, m) for t, r, p, m in rows if (r, p) == key]
         ax.plot([t / 60 for t, _ in pts], [m for _, m in pts], label=f"{key[0]} ({key[1]})")
-    if browser_window is not None:
-        ax.axvspan(*browser_window, color="0.9", label="browser connected")
+    for i, window in enumerate(browser_windows):
+        ax.axvspan(*window, color="0.9", label="browser connected" if i == 0 else None)
     ax.set_xlabel("minutes")
     ax.set_ylabel("RSS, MB")
     ax.set_title(title)
@@ -150,8 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup-min", type=float, default=10.0,
                     help="minutes left out of the RSS slope (numba compilation, caches)")
     ap.add_argument("--sample-s", type=float, default=10.0, help="RSS sampling interval")
-    ap.add_argument("--browser-at", type=float, default=None, metavar="MIN",
-                    help="connect a headless browser to the live view at this minute")
+    ap.add_argument("--browser-at", type=float, nargs="+", default=[], metavar="MIN",
+                    help="connect a headless browser to the live view at these minutes")
     ap.add_argument("--browser-minutes", type=float, default=10.0)
     ap.add_argument("--out", type=Path, default=Path("soak-out"))
     ap.add_argument("--ports", type=int, nargs=2, default=(9876, 9090), metavar=("GRPC", "WEB"),
@@ -180,9 +187,9 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     events: list[str] = []
     browser = None
-    if args.browser_at is not None:
+    if args.browser_at:
         browser = threading.Thread(target=browse, daemon=True, args=(
-            stop, args.browser_at * 60, args.browser_minutes,
+            stop, sorted(m * 60 for m in args.browser_at), args.browser_minutes,
             PAGE.format(grpc=args.ports[0], web=args.ports[1]), events))
         browser.start()
     rows: list[tuple[float, str, int, float]] = []
@@ -239,11 +246,9 @@ def main(argv: list[str] | None = None) -> int:
         "counters": c, "events": events,
     }
     (args.out / "soak.json").write_text(json.dumps(report, indent=2))
-    window = None
-    if args.browser_at is not None:
-        window = (args.browser_at, args.browser_at + args.browser_minutes)
+    windows = [(m, m + args.browser_minutes) for m in sorted(args.browser_at)]
     plot(rows, args.out / "soak.png", f"ogiflow run, {args.minutes:g} min: RSS per process",
-         window)
+         windows)
     if not args.keep_recordings:
         shutil.rmtree(rec_dir, ignore_errors=True)
     print(json.dumps({k: report[k] for k in ("exit_code", "frames", "frames_lost", "pairs",

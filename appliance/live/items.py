@@ -88,6 +88,8 @@ class LiveStats:
     dropped: int = 0
     logged: int = 0
     errors: int = 0
+    #: Frames after which Rerun had not sent everything within ``DRAIN_TIMEOUT_S``.
+    slow_sends: int = 0
     last_error: str = ""
     url: str = ""
 

@@ -27,7 +27,9 @@ def health_counters(app: Any) -> dict[str, int]:
         out["recorder_write_errors"] = rs.write_errors
         out["recording_paused"] = int(rs.paused)
     if app.live is not None:
-        out["live_drops"] = int(app.live.stats().dropped)
+        ls = app.live.stats()
+        out["live_drops"] = int(ls.dropped)
+        out["live_slow_sends"] = int(ls.slow_sends)
     if app.ring is not None:
         out["ring_overwrites"] = int(app.ring.stats().overwrites)
     if getattr(app.acquisition, "anemometer", None) is not None:

@@ -28,6 +28,10 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 
+#: Seconds between two returns of a process's free heap to the kernel
+#: (:func:`release_freed_memory`): the workers' loop and the daemon's main loop.
+TRIM_EVERY_S = 60.0
+
 #: Allocations below this come from the heap and are reused; above, from mmap.
 MMAP_THRESHOLD_BYTES = 64 * 1024 * 1024
 _M_TRIM_THRESHOLD = -1

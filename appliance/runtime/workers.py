@@ -142,9 +142,6 @@ class EmissionSetup:
 
 
 #: The rate of a frame when the cameras have no radiometric calibration.
-#: Seconds between two returns of the worker's free heap to the kernel
-#: (:func:`appliance.runtime.tuning.release_freed_memory`).
-TRIM_EVERY_S = 60.0
 NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
 
 
@@ -253,7 +250,7 @@ def worker_main(
     """
     from appliance.runtime.ring import PairRing
     from appliance.runtime.shiftshare import SharedShiftMemo
-    from appliance.runtime.tuning import keep_freed_memory, release_freed_memory
+    from appliance.runtime.tuning import TRIM_EVERY_S, keep_freed_memory, release_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()
