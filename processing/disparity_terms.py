@@ -29,6 +29,7 @@ def data_terms(
     d0: np.ndarray,
     dp0: np.ndarray,
     eps: float,
+    w3: float,
     a11: np.ndarray,
     a12: np.ndarray,
     a22: np.ndarray,
@@ -61,6 +62,9 @@ def data_terms(
         Disparity and disparity change used for the warp.
     eps : float
         Charbonnier epsilon.
+    w3 : float
+        Weight of E3 (1 in the paper's Eq. 6; see
+        :func:`processing.disparity.joint_disparity`'s ``right_temporal_weight``).
     a11, a12, a22, r1, r2 : ndarray, shape (H, W), float32
         Outputs.
     """
@@ -68,6 +72,7 @@ def data_terms(
     # float32 constants: a float64 scalar would promote each pixel's arithmetic to
     # float64 and halve the SIMD width (see processing.optical_flow).
     e2 = np.float32(eps * eps)
+    k3 = np.float32(w3)
     p1 = np.empty(w, np.float32)
     p3 = np.empty(w, np.float32)
     p4 = np.empty(w, np.float32)
@@ -87,7 +92,7 @@ def data_terms(
             l3 = re3[x] + (a - b) * dd - b * ddp
             l4 = re4[x] - b * (dd + ddp)
             p1[x] = rm1[x] / np.sqrt(l1 * l1 + e2)
-            p3[x] = rm3[x] / np.sqrt(l3 * l3 + e2)
+            p3[x] = k3 * rm3[x] / np.sqrt(l3 * l3 + e2)
             p4[x] = rm4[x] / np.sqrt(l4 * l4 + e2)
         o11, o12, o22, o1, o2 = a11[y], a12[y], a22[y], r1[y], r2[y]
         for x in range(w):
