@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 import urllib.request
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import pytest
 from appliance.config import LiveConfig
 from appliance.live.blueprint import blueprint
 from appliance.live.colour import disparity_bgr, flow_bgr, to_u8
+from appliance.live.status import OperatorStatus
 from appliance.live.view import (
     LiveFrame,
     LiveScalars,
@@ -68,7 +70,10 @@ def test_save_mode_writes_a_verified_rrd(tmp_path: Path) -> None:
     assert view.push(LiveScalars(t_capture_ns=1, values={"bad": None, "x": 1.0}, prefix="misc"))
     assert view.close()
     st = view.stats()
-    assert (st.pushed, st.dropped, st.logged, st.errors) == (12, 0, 12, 0), st.last_error
+    # Frames pushed faster than shown replace each other (the newest is shown); every item
+    # is either shown or counted as dropped, and the last frame is never lost.
+    assert st.pushed == 12 and st.errors == 0, st.last_error
+    assert st.logged + st.dropped == 12 and st.logged >= 3
     result = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(path)],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
@@ -115,9 +120,8 @@ def test_stalled_logging_never_blocks_the_producer(tmp_path: Path,
     t.join(30)  # bounded: the producer must finish although nothing is being logged
     assert not t.is_alive(), "push() blocked on a stalled viewer"
     st = view.stats()
-    assert st.pushed + st.dropped == n and st.pushed == sum(results)
-    assert st.pushed <= 8 + 1  # the queue, plus the item stuck in the logging call
-    assert st.dropped >= n - 9
+    assert st.pushed == n == sum(results)  # frames replace each other: never refused
+    assert st.logged == 0 and st.dropped >= n - 2  # one stuck in Rerun, one waiting
     assert not view.close(timeout=0.5)  # abandons the stuck thread instead of hanging
     gate.set()
 
@@ -165,7 +169,7 @@ def test_stalled_viewer_socket_never_blocks_the_producer() -> None:
     words = out.stdout.split()
     assert words and words[0] == "producer_done", out.stdout + out.stderr
     pushed, dropped = int(words[1]), int(words[2])
-    assert pushed + dropped == 3000
+    assert pushed == 3000 and dropped >= 2990
 
 
 UNREACHABLE_CHILD = textwrap.dedent("""
@@ -202,9 +206,39 @@ def test_unsent_frames_are_dropped_not_queued_inside_rerun() -> None:
     words = out.stdout.split()
     assert len(words) == 4, out.stdout + out.stderr
     pushed, dropped, logged, slow = (int(w) for w in words)
-    assert pushed + dropped == 300
-    assert logged <= 3 and slow >= 1, out.stdout  # 3 s of 2 s waits
-    assert dropped >= 250, out.stdout
+    assert pushed == 300
+    # Every frame shown waited for its send and timed out (nothing listens), so at most
+    # the one in hand was not followed by a wait; the rest replaced each other.
+    assert slow >= 1 and logged <= slow + 1, out.stdout
+    assert dropped >= 280, out.stdout
+
+
+def test_a_slow_viewer_sees_the_newest_frame_and_every_status(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Frames at 100 Hz, a status at 5 Hz, a live thread that needs 0.1 s per frame: each
+    frame shown is the newest one pushed (a queue of 8 showed frames 0.8 s old and let
+    the frames crowd out the status: the browser's "Newest frame" fell 25 -> 48 s behind)."""
+    view = LiveView(_cfg(mode="save", file=tmp_path / "x.rrd"))
+    shown_lag: list[int] = []
+    statuses: list[int] = []
+    newest = [0]
+
+    def slow_frame(f: LiveFrame) -> None:
+        shown_lag.append(newest[0] - f.frame)
+        time.sleep(0.1)
+
+    monkeypatch.setattr(view, "_log_frame", slow_frame)
+    monkeypatch.setattr(view, "_log_status", lambda s: statuses.append(s.t_capture_ns))
+    view.start()
+    for i in range(200):
+        newest[0] = i
+        view.push(LiveFrame(frame=i, t_capture_ns=i))
+        if i % 20 == 0:
+            view.push(OperatorStatus(t_capture_ns=i))
+        time.sleep(0.01)
+    assert view.close()
+    assert len(statuses) >= 9, statuses  # 10 pushed; at most the last one replaced
+    assert len(shown_lag) >= 5 and max(shown_lag) <= 10, shown_lag  # queue of 8: ~80
 
 
 def test_serve_mode_serves_and_frees_its_ports() -> None:

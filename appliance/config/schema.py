@@ -180,7 +180,8 @@ class LiveConfig:
     url: str = _opt("viewer to stream to in connect mode", "rerun+http://127.0.0.1:9876/proxy",
                     nonempty=True)
     file: Path = _opt(".rrd file written in save mode", Path("ogiflow.rrd"))
-    queue_size: int = _opt("live items queued before new ones are dropped", 8, min=1,
+    queue_size: int = _opt("health samples queued for the live plots before new ones are "
+                           "dropped (frames and status: only the newest waits)", 8, min=1,
                            max=10_000)
     jpeg_quality: int = _opt("JPEG quality of live images", 80, min=1, max=100)
     max_image_hz: float = _opt(

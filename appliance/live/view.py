@@ -1,10 +1,13 @@
-"""Rerun live view in its own thread, behind a small bounded queue that drops when full.
+"""Rerun live view in its own thread, fed through slots that keep only the newest item.
 
 A stalled viewer makes ``rr.log`` block for tens of seconds (DESIGN.md), so nothing but this
 module's thread ever calls Rerun: producers call :meth:`LiveView.push` with plain dataclasses
-(:class:`LiveFrame`, :class:`LiveScalars`), which returns at once; when the queue is full the
-item is dropped and counted. Images are encoded to JPEG in the live thread (not raw uint16:
-9.4 MB/s at 2 x 30 Hz).
+(:class:`LiveFrame`, :class:`OperatorStatus`, :class:`LiveScalars`), which returns at once. A
+live view shows the present: the newest frame and the newest status each wait in a slot of
+their own and replace an older one not yet shown (counted as dropped), so a slow viewer sees
+fewer frames, never older ones, and the 1 Hz status is never crowded out by frames; health
+samples (for plots) wait in a short queue of ``live.queue_size``. Images are encoded to JPEG
+in the live thread (not raw uint16: 9.4 MB/s at 2 x 30 Hz).
 
 Modes (``live.mode``):
 
@@ -22,11 +25,10 @@ Entity paths: ``cam/left/diff``, ``cam/right/diff``, ``flow``, ``disparity``, ``
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import queue
 import threading
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -64,8 +66,6 @@ DRAIN_TIMEOUT_S = 2.0
 
 # --------------------------------------------------------------------------- the view
 
-_STOP = object()
-
 
 class LiveView:
     """The live view thread. ``start()``, ``push()`` from anywhere, ``close()``.
@@ -85,8 +85,12 @@ class LiveView:
     def __init__(self, cfg: LiveConfig, *, server_memory_limit: str = "512MB",
                  max_image_hz: float = 5.0) -> None:
         self.cfg = cfg
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=cfg.queue_size)
         self._lock = threading.Lock()
+        self._wake = threading.Condition(self._lock)
+        # The newest unsent frame and status, and the health samples (see the module doc).
+        self._frame: LiveFrame | None = None
+        self._status: OperatorStatus | None = None
+        self._scalars: deque[LiveScalars] = deque()
         self._stats = LiveStats()
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
@@ -101,17 +105,28 @@ class LiveView:
     # ------------------------------------------------------------------ producer side
 
     def push(self, item: LiveFrame | LiveScalars | OperatorStatus) -> bool:
-        """Queue an item for display; never blocks. False (and counted) when dropped."""
+        """Hand an item to the live thread; never waits on Rerun.
+
+        A frame or status replaces the one of its kind not yet shown (that one is counted
+        as dropped); a health sample is refused (False, counted) when ``live.queue_size``
+        wait already. False as well when the view is not running.
+        """
         if self._thread is None:
             return False
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
-            with self._lock:
-                self._stats.dropped += 1
-            return False
-        with self._lock:
+        with self._wake:
+            if isinstance(item, LiveScalars):
+                if len(self._scalars) >= self.cfg.queue_size:
+                    self._stats.dropped += 1
+                    return False
+                self._scalars.append(item)
+            elif isinstance(item, OperatorStatus):
+                self._stats.dropped += self._status is not None
+                self._status = item
+            else:
+                self._stats.dropped += self._frame is not None
+                self._frame = item
             self._stats.pushed += 1
+            self._wake.notify()
         return True
 
     def stats(self) -> LiveStats:
@@ -183,9 +198,9 @@ class LiveView:
         (a stalled viewer): it is then abandoned (a daemon thread) rather than waited for."""
         ok = True
         if self._thread is not None:
-            self._stop.set()
-            with contextlib.suppress(queue.Full):
-                self._queue.put_nowait(_STOP)
+            with self._wake:
+                self._stop.set()
+                self._wake.notify()
             self._thread.join(timeout)
             if self._thread.is_alive():
                 log.warning("live view: Rerun did not return within %.1f s; abandoning it",
@@ -216,30 +231,41 @@ class LiveView:
             self._pending_blueprint = None
         self._log_styles()
         while True:
-            try:
-                item = self._queue.get(timeout=0.2)
-            except queue.Empty:
-                if self._stop.is_set():
-                    break
-                continue
-            if item is _STOP:
+            with self._wake:
+                while not (self._stop.is_set() or self._frame is not None
+                           or self._status is not None or self._scalars):
+                    self._wake.wait()
+                # What is pending at a stop is still shown (a save-mode file ends complete).
+                stopping = self._stop.is_set()
+                status, self._status = self._status, None
+                scalars = list(self._scalars)
+                self._scalars.clear()
+                frame, self._frame = self._frame, None
+            # The status first: it is what the operator reads, and it is small.
+            for item in (status, *scalars, frame):
+                if item is not None:
+                    self._show(item)
+            if frame is not None:
+                self._drain()
+            if stopping:
                 break
-            try:
-                if isinstance(item, LiveFrame):
-                    self._log_frame(item)
-                    self._drain()
-                elif isinstance(item, OperatorStatus):
-                    self._log_status(item)
-                else:
-                    self._log_scalars(item)
-                with self._lock:
-                    self._stats.logged += 1
-            except Exception as exc:  # bad item or viewer error: count it, keep the view alive
-                with self._lock:
-                    self._stats.errors += 1
-                    self._stats.last_error = f"{type(exc).__name__}: {exc}"
-                if self._stats.errors in (1, 10, 100) or self._stats.errors % 1000 == 0:
-                    log.warning("live view: %s (%d errors)", exc, self._stats.errors)
+
+    def _show(self, item: LiveFrame | LiveScalars | OperatorStatus) -> None:
+        try:
+            if isinstance(item, LiveFrame):
+                self._log_frame(item)
+            elif isinstance(item, OperatorStatus):
+                self._log_status(item)
+            else:
+                self._log_scalars(item)
+            with self._lock:
+                self._stats.logged += 1
+        except Exception as exc:  # bad item or viewer error: count it, keep the view alive
+            with self._lock:
+                self._stats.errors += 1
+                self._stats.last_error = f"{type(exc).__name__}: {exc}"
+            if self._stats.errors in (1, 10, 100) or self._stats.errors % 1000 == 0:
+                log.warning("live view: %s (%d errors)", exc, self._stats.errors)
 
     def _drain(self) -> None:
         """Wait until Rerun has sent everything logged so far (at most DRAIN_TIMEOUT_S).
@@ -248,8 +274,9 @@ class LiveView:
         (a browser on the appliance's two cores starves it), Rerun's queue inside this
         process grew without bound - measured +220 MB in the daemon and a displayed frame
         that fell further behind every second (25 -> 48 s in 30 s). Waiting here holds
-        the backlog to about one frame; the frames that arrive meanwhile are dropped at
-        ``push`` and counted (``live_drops``), so the view shows fewer but current frames.
+        the backlog to about one frame; the frames that arrive meanwhile replace each other
+        in the frame slot (counted as ``live_drops``), so the view shows fewer but current
+        frames.
         """
         try:
             self._rec.flush(timeout_sec=DRAIN_TIMEOUT_S)
