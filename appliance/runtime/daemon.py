@@ -43,7 +43,7 @@ from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.tuning import TRIM_EVERY_S, release_freed_memory
+from appliance.runtime.tuning import PeriodicTrim
 from appliance.runtime.workers import WorkerResult, emission_setup, worker_main
 from processing.chain import ChainParameters, StereoGeometry
 
@@ -413,17 +413,12 @@ class Appliance:
 
     def _wait(self) -> None:
         t_end = None if self.duration_s is None else time.monotonic() + self.duration_s
-        trimmed_at = time.monotonic()
+        trim = PeriodicTrim()
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
             self._supervise_workers()
-            if time.monotonic() - trimmed_at >= TRIM_EVERY_S:
-                # A burst (a slow viewer or browser backing up the live view, results
-                # piling up while starved of CPU) otherwise stays resident for months:
-                # glibc keeps freed memory inside the arenas of the daemon's threads.
-                release_freed_memory()
-                trimmed_at = time.monotonic()
+            trim.tick()
             if t_end is not None and time.monotonic() >= t_end:
                 break
 

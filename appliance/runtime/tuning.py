@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import time
 
 #: Seconds between two returns of a process's free heap to the kernel
 #: (:func:`release_freed_memory`): the workers' loop and the daemon's main loop.
@@ -72,3 +73,22 @@ def release_freed_memory() -> bool:
     trim.argtypes = (ctypes.c_size_t,)
     trim.restype = ctypes.c_int
     return bool(trim(0) == 1)
+
+
+class PeriodicTrim:
+    """Calls :func:`release_freed_memory` from a loop at most every ``every_s`` seconds.
+
+    For the workers' loop and the daemon's main loop: a burst (results piling up while the
+    process was starved of CPU, a slow viewer backing up the live view) otherwise stays
+    resident for the rest of a months-long run, glibc keeping freed memory in its arenas.
+    """
+
+    def __init__(self, every_s: float = TRIM_EVERY_S) -> None:
+        self.every_s = every_s
+        self._last = time.monotonic()
+
+    def tick(self) -> None:
+        """Trim if ``every_s`` has passed since the last trim (cheap otherwise)."""
+        if time.monotonic() - self._last >= self.every_s:
+            release_freed_memory()
+            self._last = time.monotonic()

@@ -250,7 +250,7 @@ def worker_main(
     """
     from appliance.runtime.ring import PairRing
     from appliance.runtime.shiftshare import SharedShiftMemo
-    from appliance.runtime.tuning import TRIM_EVERY_S, keep_freed_memory, release_freed_memory
+    from appliance.runtime.tuning import PeriodicTrim, keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()
@@ -265,7 +265,7 @@ def worker_main(
     max_lag = ring.capacity // 2 if n_workers <= 2 else None
     torn = 0
     undelivered = 0  # results the daemon did not take within a second (counted as skipped)
-    trimmed_at = time.monotonic()
+    trim = PeriodicTrim()
     estimator = None if emission is None else emission.estimator(geometry)
     own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
@@ -311,9 +311,7 @@ def worker_main(
                 results.put(base, timeout=1.0)
             except queue.Full:
                 undelivered += 1
-            if time.monotonic() - trimmed_at >= TRIM_EVERY_S:
-                release_freed_memory()
-                trimmed_at = time.monotonic()
+            trim.tick()
     finally:
         ring.close()
 
