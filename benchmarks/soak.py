@@ -81,6 +81,33 @@ def sample(main: Any) -> list[tuple[str, int, float]]:
     return out
 
 
+def memory_kinds(proc: Any) -> tuple[dict[str, float], list[tuple[str, float, float]]]:
+    """Where a process's resident memory lies: MB per kind of mapping and its large
+    anonymous mappings (address, size MB, RSS MB).
+
+    Kinds: ``heap`` (glibc's main arena, ``[heap]``), ``anon`` (anonymous mappings: glibc's
+    thread arenas and large blocks, Python's object arenas, Rust allocators, thread stacks),
+    ``file`` (code and mapped files), ``other``. A step in RSS that shows in one kind, and
+    in one mapping there, names the allocator that holds it.
+    """
+    kinds = {"heap": 0.0, "anon": 0.0, "file": 0.0, "other": 0.0}
+    big = []
+    for m in proc.memory_maps(grouped=False):
+        mb = m.rss / 1e6
+        path = m.path
+        if path == "[heap]":
+            kinds["heap"] += mb
+        elif not path or path.startswith("[anon"):
+            kinds["anon"] += mb
+            if mb >= 1.0:
+                big.append((m.addr.split("-")[0], getattr(m, "size", 0) / 1e6, mb))
+        elif path.startswith("/"):
+            kinds["file"] += mb
+        else:
+            kinds["other"] += mb
+    return kinds, big
+
+
 def slope_mb_per_h(t_s: np.ndarray, rss_mb: np.ndarray) -> float | None:
     """Least-squares slope of RSS over time, MB/h (None with fewer than 3 samples)."""
     if len(t_s) < 3 or np.ptp(t_s) <= 0:
@@ -163,6 +190,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("soak-out"))
     ap.add_argument("--ports", type=int, nargs=2, default=(9876, 9090), metavar=("GRPC", "WEB"),
                     help="live view ports (another appliance on the box may hold the defaults)")
+    ap.add_argument("--maps-every-s", type=float, default=60.0,
+                    help="interval of the memory-map breakdown of the daemon and the viewer "
+                         "server (soak_maps.csv, soak_maps.jsonl); 0 = off")
     ap.add_argument("--keep-recordings", action="store_true")
     ap.add_argument("--config", default=None)
     ap.add_argument("--set", action="append", default=[], dest="set_options")
@@ -194,15 +224,36 @@ def main(argv: list[str] | None = None) -> int:
         browser.start()
     rows: list[tuple[float, str, int, float]] = []
     load: list[float] = []
+    kind_rows: list[tuple[float, str, int, str, float]] = []
+    maps_log = (args.out / "soak_maps.jsonl").open("w")
+    last_maps = -1e9
     try:
         while proc.poll() is None:
             t = time.monotonic() - t0
-            rows.extend((t, role, pid, mb) for role, pid, mb in sample(main_proc))
+            now = sample(main_proc)
+            rows.extend((t, role, pid, mb) for role, pid, mb in now)
             load.append(os.getloadavg()[0])
+            if args.maps_every_s > 0 and t - last_maps >= args.maps_every_s:
+                last_maps = t
+                for role, pid, _mb in now:
+                    if role not in ("main", "viewer-server"):
+                        continue
+                    try:
+                        p = psutil.Process(pid)
+                        kinds, big = memory_kinds(p)
+                        threads = p.num_threads()
+                    except psutil.Error:
+                        continue
+                    kind_rows.extend((t, role, pid, k, v) for k, v in kinds.items())
+                    maps_log.write(json.dumps({"t_s": round(t, 1), "role": role, "pid": pid,
+                                               "threads": threads, "kinds": kinds,
+                                               "anon_mappings": big}) + "\n")
+                    maps_log.flush()
             time.sleep(args.sample_s)
     except KeyboardInterrupt:
         proc.send_signal(signal.SIGTERM)
         proc.wait(60)
+    maps_log.close()
     stop.set()
     if browser is not None:
         browser.join(30)
@@ -213,7 +264,16 @@ def main(argv: list[str] | None = None) -> int:
         w = csv.writer(f)
         w.writerow(["t_s", "role", "pid", "rss_mb"])
         w.writerows(rows)
+    with open(args.out / "soak_maps.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t_s", "role", "pid", "kind", "rss_mb"])
+        w.writerows(kind_rows)
     warm = args.warmup_min * 60
+    kind_slopes: dict[str, float | None] = {}
+    for key in sorted({(r, p, k) for _t, r, p, k, _m in kind_rows}):
+        pts = np.array([(t, m) for t, r, p, k, m in kind_rows if (r, p, k) == key and t >= warm])
+        kind_slopes[":".join(map(str, key))] = (slope_mb_per_h(pts[:, 0], pts[:, 1])
+                                                if len(pts) else None)
     procs: dict[str, Any] = {}
     for key in sorted({(r, p) for _t, r, p, _m in rows}):
         pts = np.array([(t, m) for t, r, p, m in rows if (r, p) == key and t >= warm])
@@ -244,6 +304,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_avg_1min": {"mean": float(np.mean(load)) if load else None,
                           "max": float(np.max(load)) if load else None},
         "counters": c, "events": events,
+        "slope_after_warmup_by_kind_mb_per_h": kind_slopes,
     }
     (args.out / "soak.json").write_text(json.dumps(report, indent=2))
     windows = [(m, m + args.browser_minutes) for m in sorted(args.browser_at)]
