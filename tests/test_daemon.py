@@ -110,6 +110,20 @@ def test_every_frame_and_wind_sample_is_recorded(recorded: dict) -> None:
     assert app.recorder.stats().messages_dropped == 0
 
 
+def test_cold_starts_are_counted(recorded: dict) -> None:
+    # Each worker's first triple starts cold and, at ring stride 2 on a machine that keeps
+    # up, most later ones warm from the worker's previous triple: the count shows which.
+    from appliance.recording.reader import iter_json
+
+    c = recorded["app"].counters
+    assert 1 <= c.cold_results <= c.results
+    assert c.cold_results < c.results  # at least one warm start happened
+    _reader, messages = iter_json(recorded["files"][0], ["/health"])
+    health = [m["counters"] for _topic, m in messages]
+    assert "cold_results" in health[-1]
+    assert 0 <= health[-1]["cold_results"] <= c.cold_results
+
+
 def test_file_carries_config_geometry_and_parameters(recorded: dict) -> None:
     meta = read_metadata(recorded["files"][0])
     assert {"recording", "config", "calibration", "geometry", "processing"} <= set(meta)

@@ -56,6 +56,8 @@ class Counters:
     results: int = 0
     result_errors: int = 0
     skipped_pairs: int = 0
+    #: Results whose solvers started cold (full pyramid, SGM start): about twice the work.
+    cold_results: int = 0
     wind_samples: int = 0
     worker_restarts: int = 0
 

@@ -24,7 +24,8 @@ def announce_end(app: Any) -> None:
     sys.stderr.write(
         f"ogiflow: stopped. frames {c.frames['left']}/{c.frames['right']} (left/right), "
         f"lost {c.frames_lost['left']}/{c.frames_lost['right']}, pairs {c.pairs}, "
-        f"processed {c.results} ({c.results / elapsed:.1f}/s, {100 * share:.0f} %), "
+        f"processed {c.results} ({c.results / elapsed:.1f}/s, {100 * share:.0f} %, "
+        f"{100 * c.cold_results / max(c.results, 1):.0f} % of them started cold), "
         f"skipped {c.skipped_pairs} ({c.skipped_pairs / elapsed:.1f}/s), "
         f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
     if app.peak_rss_mb:

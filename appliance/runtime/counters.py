@@ -17,7 +17,8 @@ def health_counters(app: Any) -> dict[str, int]:
         "unpaired_left": c.unpaired["left"], "unpaired_right": c.unpaired["right"],
         "worker_restarts": c.worker_restarts,
         "pairs": c.pairs, "results": c.results, "result_errors": c.result_errors,
-        "skipped_pairs": c.skipped_pairs, "frame_queue_drops": c.frame_queue_drops,
+        "skipped_pairs": c.skipped_pairs, "cold_results": c.cold_results,
+        "frame_queue_drops": c.frame_queue_drops,
         "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
         "wind_samples": c.wind_samples,
     }

@@ -142,6 +142,7 @@ class Appliance:
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
         elif self.publisher.publish(res) is not None:
             self.counters.results += 1
+            self.counters.cold_results += not res.warm
 
     def _truth_for(self, pair_index0: int) -> np.ndarray | None:
         """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""

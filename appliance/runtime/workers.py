@@ -74,6 +74,7 @@ class WorkerResult:
     pixels: np.ndarray | None = None  # (N, 2) int32 (x, y) of those gas pixels
     raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
     rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
+    warm: bool = False  # the solvers started from the worker's previous triple
 
 
 @dataclass(frozen=True)
@@ -171,6 +172,7 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
     base.dt_s = res.dt_s
     base.diff_scale = res.diff_scale
     base.rejected_shifts = res.rejected_shifts
+    base.warm = bool(res.warm)
     base.diff_left = _to_u8(res.diff_left[0])
     base.diff_right = _to_u8(res.diff_right[0])
     base.flow = res.flow
