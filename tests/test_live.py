@@ -259,6 +259,30 @@ def test_serve_mode_serves_and_frees_its_ports() -> None:
         s.bind(("127.0.0.1", grpc_port))
 
 
+def _environ_of(pid: int) -> dict[str, str]:
+    raw = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+    return dict(item.decode().split("=", 1) for item in raw if b"=" in item)
+
+
+@pytest.mark.parametrize("preset", [None, "250"])
+def test_rerun_allocator_returns_freed_memory_at_once(monkeypatch: pytest.MonkeyPatch,
+                                                      preset: str | None) -> None:
+    # mimalloc (inside the Rerun SDK and the viewer server) otherwise kept the memory of a
+    # browser session for the rest of the run (runtime/tuning.py); a site's value wins.
+    monkeypatch.setenv("MIMALLOC_PURGE_DELAY", preset or "")  # restored after the test
+    if preset is None:
+        monkeypatch.delenv("MIMALLOC_PURGE_DELAY")
+    view = LiveView(_cfg(mode="serve", grpc_port=_free_port(), web_port=_free_port())).start()
+    try:
+        assert view._server is not None
+        server_env = _environ_of(view._server.process.pid)
+    finally:
+        view.close()
+    expected = preset or "0"
+    assert server_env.get("MIMALLOC_PURGE_DELAY") == expected
+    assert os.environ.get("MIMALLOC_PURGE_DELAY") == expected  # this process's SDK
+
+
 def test_busy_web_port_is_reported_before_starting() -> None:
     with socket.socket() as busy:
         busy.bind(("127.0.0.1", 0))

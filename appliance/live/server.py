@@ -21,6 +21,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from appliance.runtime.tuning import with_mimalloc_purge
+
 __all__ = ["LiveViewError", "ViewerServer", "check_port_free", "start_viewer_server"]
 
 #: How long the server may take to listen before start-up fails.
@@ -144,7 +146,8 @@ def start_viewer_server(bind: str, grpc_port: int, web_port: int,
            "--port", str(grpc_port), "--web-viewer-port", str(web_port),
            "--server-memory-limit", memory_limit]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, preexec_fn=_pdeathsig_hook())
+                            stderr=subprocess.DEVNULL, preexec_fn=_pdeathsig_hook(),
+                            env=with_mimalloc_purge(os.environ))
     host = _client_host(bind)
     shown = _url_host(socket.gethostname() if bind in ("0.0.0.0", "::") else host)
     view = f"rerun+http://{shown}:{grpc_port}/proxy"

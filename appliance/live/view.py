@@ -26,6 +26,7 @@ Entity paths: ``cam/left/diff``, ``cam/right/diff``, ``flow``, ``disparity``, ``
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -41,6 +42,7 @@ from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, ir_u8, t
 from appliance.live.items import LiveFrame, LiveScalars, LiveStats, health_scalars
 from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
 from appliance.live.status import OperatorStatus, events_markdown, status_markdown
+from appliance.runtime.tuning import with_mimalloc_purge
 
 __all__ = [
     "LiveFrame",
@@ -155,6 +157,8 @@ class LiveView:
         mode = self.cfg.mode
         if mode == "off":
             return self
+        # Before the first import of rerun: its allocator reads the setting when it loads.
+        os.environ.update(with_mimalloc_purge(os.environ))
         import rerun as rr
 
         self._rec = rr.RecordingStream(application_id=APP_ID)
