@@ -44,7 +44,7 @@ _M_MMAP_THRESHOLD = -3
 #: again after ``purge_delay`` (1000 ms in v3): not a timer, so memory freed after a burst
 #: by a thread that then idles stays resident. A browser on the live view is such a burst
 #: (the server reads slowly, the SDK holds the stream meanwhile): in the session-7 soak
-#: the daemon's mimalloc arenas grew from 9 to 72 MB over an 8-minute browser session and
+#: the daemon's mimalloc arenas grew from 9 to 76 MB over an 8-minute browser session and
 #: kept 72 MB after it, the second browser added 10 MB more. With purging at free time the
 #: same 8 minutes took them from 9 to 63 MB and back to 9 MB when the browser left; the
 #: viewer server's anonymous memory three minutes after the browser left was 124 MB
