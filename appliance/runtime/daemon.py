@@ -16,7 +16,8 @@ newest consecutive windows and count what they skipped; the live view has its ow
 queue that drops when full.
 
 Where each box lives: camera and pairing threads and the raw wind recording in
-``runtime.acquisition``; workers in ``runtime.workers``; ring in ``runtime.ring``; result
+``runtime.acquisition``; the worker pool (ring, worker processes, results thread) in
+``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; result
 publishing in ``runtime.publishing``; recorder in ``recording.recorder``; live view in
 ``live.view``; health in ``runtime.health``; the simulated site in ``runtime.simsite``.
 """
@@ -25,8 +26,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing as mp
-import queue
 import signal
 import threading
 import time
@@ -41,17 +40,14 @@ from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
-from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.tuning import PeriodicTrim
-from appliance.runtime.workers import WorkerResult, emission_setup, worker_main
+from appliance.runtime.workers import WorkerResult, emission_setup
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
 SIDES = ("left", "right")
-#: Results in flight from the workers to the daemon (see :meth:`Appliance._start_processing`).
-RESULTS_QUEUE_SIZE = 8
 
 
 class Appliance:
@@ -81,6 +77,7 @@ class Appliance:
         self.monitor: Any = None
         self.live: Any = None
         self.ring: Any = None
+        self.pool: Any = None
         self.site: SimulatedSite | None = None
         self.acquisition: Any = None
         self.history: Any = None
@@ -88,7 +85,6 @@ class Appliance:
         self.live_url: str | None = None
         #: Faults that end the run with exit code 1 (a thread died, files not finalised).
         self.failures: list[str] = []
-        self._workers: list[Any] = []
         self._keep_up = KeepUpCheck()
         #: Peak resident memory of the daemon and each worker, MB (filled at shutdown).
         self.peak_rss_mb: list[float | None] = []
@@ -113,19 +109,6 @@ class Appliance:
             "calibration: a stereo calibration file is required for real cameras "
             "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
         )
-
-    def _results_loop(self, results: Any) -> None:
-        while True:
-            try:
-                res: WorkerResult = results.get(timeout=0.1)
-            except queue.Empty:
-                if self.stop_event.is_set() and self._workers_done.is_set():
-                    break
-                continue
-            try:
-                self._handle_result(res)
-            except Exception:
-                log.exception("result of pair %s could not be handled", res.pair_indices)
 
     def _handle_result(self, res: WorkerResult) -> None:
         self.counters.skipped_pairs += res.skipped
@@ -221,7 +204,6 @@ class Appliance:
         defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
         self.emission = emission_setup(cfg, self.site.truth)
-        self._workers_done = threading.Event()
         self._previous_handlers: dict[int, Any] = {}
 
     def _start_recording(self, stack: contextlib.ExitStack) -> None:
@@ -267,48 +249,16 @@ class Appliance:
 
     def _start_processing(self, stack: contextlib.ExitStack) -> None:
         """The shared-memory ring, the worker processes and the thread that takes results."""
-        from appliance.runtime.ring import PairRing
+        from appliance.runtime.pool import WorkerPool
 
-        cfg = self.cfg
         assert self.geometry is not None
-        w, h = self.geometry.image_size
-        self.ring = PairRing.create(cfg.ring.capacity, (h, w), np.uint16)
-        stack.callback(self._release_ring)
-        self._mp = mp.get_context("spawn")
-        # About half a second of results: each carries ~2.5 MB of fields, and a full queue
-        # is held in the workers' memory (64 made 130-160 MB steps when the daemon was
-        # starved of CPU). A result not taken within 1 s is counted as a skipped triple.
-        self._results = self._mp.Queue(maxsize=RESULTS_QUEUE_SIZE)
-        self._stop_workers = self._mp.Event()
-        self._shift_table = create_shift_table(self._mp)
-        # The anemometer's sonic temperature (K) for the workers' gas temperature.
-        self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
-        stack.callback(self._stop_processing)
-        if cfg.processing.enabled:
-            for i in range(cfg.processing.workers):
-                self._workers.append(self._start_worker(i))
-        else:
-            self._workers_done.set()
-        self._spawn(self._results_loop, "results", self._results)
+        self.pool = WorkerPool(self.cfg, self.geometry, self.params, self.emission,
+                               self._handle_result, self.counters).start(stack, self._spawn)
+        self.ring = self.pool.ring
+        stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
 
-    def _start_worker(self, i: int) -> Any:
-        p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                             args=(i, self.ring.handle(), self._results, self._stop_workers,
-                                   self.geometry, self.params, self.cfg.processing.workers,
-                                   self.emission, self.sonic_k, self._shift_table),
-                             daemon=True)
-        p.start()
-        return p
-
-    def _supervise_workers(self) -> None:
-        """Start a new worker in place of one that died (OOM killer, a crash in native code):
-        processing resumes with the next window of the ring."""
-        for i, p in enumerate(self._workers):
-            if p.is_alive() or self.stop_event.is_set():
-                continue
-            log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
-            self.counters.worker_restarts += 1
-            self._workers[i] = self._start_worker(i)
+    def _note_peak_rss(self) -> None:
+        self.peak_rss_mb = [peak_rss_mb(None), *self.pool.peak_rss_mb]
 
     def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
         from appliance.runtime.monitor import monitor_from_config
@@ -363,7 +313,7 @@ class Appliance:
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
-        self.acquisition.sonic_k = getattr(self, "sonic_k", None)
+        self.acquisition.sonic_k = self.pool.sonic_k
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
@@ -386,22 +336,6 @@ class Appliance:
         if not self.recorder.close(timeout=5.0):
             self.failures.append("the recorder did not finish its files within 5 s")
 
-    def _stop_processing(self) -> None:
-        self.peak_rss_mb = [peak_rss_mb(None), *(peak_rss_mb(p.pid) for p in self._workers)]
-        self._stop_workers.set()
-        for p in self._workers:
-            p.join(timeout=2.0)
-            if p.is_alive():
-                p.terminate()
-        self._workers_done.set()
-        for t in self._threads:
-            if t.name == "results":
-                t.join(timeout=1.0)
-
-    def _release_ring(self) -> None:
-        self.ring.close()
-        self.ring.unlink()
-
     def _install_signals(self) -> None:
         self._previous_handlers = {sig: signal.signal(sig, self._on_signal)
                                    for sig in (signal.SIGTERM, signal.SIGINT)}
@@ -418,16 +352,17 @@ class Appliance:
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
-            self._supervise_workers()
+            self.pool.supervise(self.stop_event.is_set())
             trim.tick()
             if t_end is not None and time.monotonic() >= t_end:
                 break
 
-    def _spawn(self, target: Any, name: str, *args: Any) -> None:
+    def _spawn(self, target: Any, name: str, *args: Any) -> threading.Thread:
         t = threading.Thread(target=self._guarded, name=name, args=(target, name, *args),
                              daemon=True)
         t.start()
         self._threads.append(t)
+        return t
 
     def _guarded(self, target: Any, name: str, *args: Any) -> None:
         """Run a thread's loop; an exception escaping it stops the run with exit code 1

@@ -1,0 +1,148 @@
+"""The worker pool: the shared-memory ring, the worker processes and the results thread.
+
+The daemon owns one pool per run. Pairs enter through :attr:`WorkerPool.ring` (the pairing
+thread writes, never waits); the workers take the newest consecutive windows; one thread takes
+their results from a small queue and hands each to the daemon's handler. A worker that dies
+(OOM killer, a crash in native code) is replaced by :meth:`WorkerPool.supervise`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing as mp
+import queue
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from appliance.config import Config
+from appliance.runtime.acquisition import Counters
+from appliance.runtime.keepup import peak_rss_mb
+from appliance.runtime.shiftshare import create_shift_table
+from appliance.runtime.workers import WorkerResult, worker_main
+from processing.chain import ChainParameters, StereoGeometry
+
+log = logging.getLogger("ogiflow")
+
+#: Results in flight from the workers to the daemon (see :meth:`WorkerPool.start`).
+RESULTS_QUEUE_SIZE = 8
+
+
+class WorkerPool:
+    """Ring, worker processes and results thread of one run.
+
+    Parameters
+    ----------
+    cfg : Config
+        Validated configuration (``ring.capacity``, ``processing.workers``/``enabled``).
+    geometry : StereoGeometry
+        Camera geometry; its ``image_size`` (w, h) sizes the ring's slots.
+    params : ChainParameters
+        Parameters of the scene-flow chain, the same for every worker.
+    emission : Any
+        Emission set-up for the workers (``workers.emission_setup``), or None.
+    handle : callable
+        Called in the results thread with every :class:`WorkerResult`; an exception it raises
+        is logged and the next result taken.
+    counters : Counters
+        The run's counters (``worker_restarts``).
+    """
+
+    def __init__(self, cfg: Config, geometry: StereoGeometry, params: ChainParameters,
+                 emission: Any, handle: Callable[[WorkerResult], None],
+                 counters: Counters) -> None:
+        self.cfg = cfg
+        self.geometry = geometry
+        self.params = params
+        self.emission = emission
+        self._handle = handle
+        self.ring: Any = None
+        #: The anemometer's sonic temperature (K), shared with the workers for the gas
+        #: temperature of the emission rate.
+        self.sonic_k: Any = None
+        self.counters = counters
+        #: Peak resident memory of each worker, MB (filled by :meth:`stop`).
+        self.peak_rss_mb: list[float | None] = []
+        self._workers: list[Any] = []
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self, stack: contextlib.ExitStack,
+              spawn: Callable[..., threading.Thread]) -> WorkerPool:
+        """Create the ring, start the workers and the results thread; teardown on ``stack``.
+
+        ``spawn(target, name, *args)`` starts a guarded daemon thread (the daemon's, so that
+        an exception escaping the results loop ends the run with exit code 1).
+        """
+        from appliance.runtime.ring import PairRing
+
+        w, h = self.geometry.image_size
+        self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
+        stack.callback(self._release_ring)
+        self._mp = mp.get_context("spawn")
+        # About half a second of results: each carries ~2.5 MB of fields, and a full queue
+        # is held in the workers' memory (64 made 130-160 MB steps when the daemon was
+        # starved of CPU). A result not taken within 1 s is counted as a skipped triple.
+        self._results = self._mp.Queue(maxsize=RESULTS_QUEUE_SIZE)
+        self._stop = self._mp.Event()
+        self._shift_table = create_shift_table(self._mp)
+        self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
+        stack.callback(self.stop)
+        if self.cfg.processing.enabled:
+            self._workers = [self._start_worker(i) for i in range(self.cfg.processing.workers)]
+        else:
+            self._done.set()
+        self._thread = spawn(self._results_loop, "results")
+        return self
+
+    def supervise(self, stopping: bool) -> None:
+        """Start a new worker in place of one that died: processing resumes with the next
+        window of the ring."""
+        for i, p in enumerate(self._workers):
+            if p.is_alive() or stopping:
+                continue
+            log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
+            self.counters.worker_restarts += 1
+            self._workers[i] = self._start_worker(i)
+
+    def stop(self) -> None:
+        """Stop the workers (terminate those that do not stop within 2 s), then the results
+        thread once it has taken what is queued."""
+        self.peak_rss_mb = [peak_rss_mb(p.pid) for p in self._workers]
+        self._stop.set()
+        for p in self._workers:
+            p.join(timeout=2.0)
+            if p.is_alive():
+                p.terminate()
+        self._done.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+
+    def _start_worker(self, i: int) -> Any:
+        p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                             args=(i, self.ring.handle(), self._results, self._stop,
+                                   self.geometry, self.params, self.cfg.processing.workers,
+                                   self.emission, self.sonic_k, self._shift_table),
+                             daemon=True)
+        p.start()
+        return p
+
+    def _results_loop(self) -> None:
+        while True:
+            try:
+                res: WorkerResult = self._results.get(timeout=0.1)
+            except queue.Empty:
+                if self._done.is_set():
+                    break
+                continue
+            try:
+                self._handle(res)
+            except Exception:
+                log.exception("result of pair %s could not be handled", res.pair_indices)
+
+    def _release_ring(self) -> None:
+        self.ring.close()
+        self.ring.unlink()
