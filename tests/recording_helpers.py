@@ -9,6 +9,7 @@ processing), so replay and reprocess read it like a real recording.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -47,8 +48,14 @@ def _image(i: int, shift_px: float, rng: np.random.Generator) -> np.ndarray:
 
 
 def write_recording(path: Path, n_frames: int, *, seed: int = 0,
-                    host: str | None = None) -> Path:
-    """Write a finished recording of ``n_frames`` per camera to ``path``; returns it."""
+                    host: str | None = None, right_stall: range | None = None) -> Path:
+    """Write a finished recording of ``n_frames`` per camera to ``path``; returns it.
+
+    ``right_stall``: the right camera's thread stalls over these frames (a busy machine) and
+    delivers them all at once with the frame after the stall - late in arrival and in file
+    order, as the recorder receives them; the cameras then carry device clocks (as GigE
+    Vision cameras do), which is what lets the clock model place a late frame.
+    """
     cfg = load_config(None, [])
     meta = file_metadata(cfg, None)
     meta.update(processing_metadata(GEOMETRY, PARAMS))
@@ -59,6 +66,7 @@ def write_recording(path: Path, n_frames: int, *, seed: int = 0,
     mono0 = 5_000_000_000
     schemas: dict[str, MessageSchema] = {}
     next_wind = 0
+    held: list[tuple[int, Frame]] = []
     for i in range(n_frames):
         t = mono0 + i * PERIOD_NS
         while mono0 + next_wind * 50_000_000 <= t:  # 20 Hz anemometer
@@ -73,12 +81,26 @@ def write_recording(path: Path, n_frames: int, *, seed: int = 0,
         for side, offset_ns, shift in (("left", 0, 0.0), ("right", 900_000, DISPARITY_PX)):
             host_ns = t + offset_ns + int(rng.integers(0, 2_000_000))
             frame = Frame(image=_image(i, shift, rng), pixel_format="Mono16", host_ns=host_ns,
-                          seq=i)
-            for m in frame_to_messages(side, frame, host_ns - mono0 + wall0):
-                schema = schemas.setdefault(m.schema_name, MessageSchema(
-                    m.schema_name, m.schema_encoding, m.schema_data, m.message_encoding))
-                sink.record(m.topic, schema, m.data, m.log_time, m.publish_time)
+                          seq=i, device_ts_ns=None if right_stall is None else t + offset_ns,
+                          device_frame_id=None if right_stall is None else i)
+            if side == "right" and right_stall is not None and i in right_stall:
+                held.append((i, frame))
+                continue
+            if side == "right":
+                for late_i, late in held:  # the stalled thread catches up, in order
+                    late = dataclasses.replace(late, host_ns=host_ns - (i - late_i))
+                    _record_frame(sink, schemas, side, late, late.host_ns - mono0 + wall0)
+                held.clear()
+            _record_frame(sink, schemas, side, frame, host_ns - mono0 + wall0)
     return sink.close()
+
+
+def _record_frame(sink: McapSink, schemas: dict[str, MessageSchema], side: str, frame: Frame,
+                  wall_ns: int) -> None:
+    for m in frame_to_messages(side, frame, wall_ns):
+        schema = schemas.setdefault(m.schema_name, MessageSchema(
+            m.schema_name, m.schema_encoding, m.schema_data, m.message_encoding))
+        sink.record(m.topic, schema, m.data, m.log_time, m.publish_time)
 
 
 def cut_recording(src: Path, dst: Path, keep_fraction: float) -> Path:

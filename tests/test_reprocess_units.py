@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from pathlib import Path
 
@@ -143,3 +144,23 @@ def test_replay_ctrl_c_leaves_a_valid_file_with_what_was_processed(tmp_path: Pat
     n = Counter(t for t, *_ in LogReader(out))
     assert 0 < n["/sceneflow/summary"] < 238
     assert not list(tmp_path.glob("*.part"))
+
+
+@pytest.mark.parametrize("max_delay_s, unpaired", [(1.0, 0), (0.2, 9)])
+def test_replay_pairs_late_frames_as_the_live_pairer_did(tmp_path: Path, max_delay_s: float,
+                                                         unpaired: int) -> None:
+    """A busy machine stalled the right camera's thread for 15 frames (0.5 s): the live pairer
+    waited for them (pairing.max_delay_s, recorded in the file's configuration), so replay
+    must wait as long; with the old fixed 0.2 s it gave the 9 frames older than 0.2 s + half
+    a period up as unpaired (the failure seen in the daemon test on a loaded machine)."""
+    from appliance.reprocess.source import PairStream, Recording
+
+    path = write_recording(tmp_path / "stall.mcap", 40, right_stall=range(10, 25))
+    rec = Recording.open(path)
+    assert rec.max_delay_s == 1.0  # the default configuration, as recorded
+    rec = dataclasses.replace(rec, max_delay_s=max_delay_s)
+    stream = PairStream(rec)
+    pairs = [pair for _, pair in stream]
+    assert stream.unpaired == {"left": unpaired, "right": unpaired}
+    assert len(pairs) == 40 - unpaired
+    assert all(p.left.seq == p.right.seq for p in pairs)

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from appliance.config.schema import PairingConfig
 from processing.chain import ChainParameters, StereoGeometry
 
 
@@ -102,6 +103,10 @@ class Recording:
         Nominal frame rate of the cameras (pairing period).
     tolerance_s : float or None
         Pairing tolerance (None: half a period).
+    max_delay_s : float
+        How long the live pairer let a frame wait for its partner; replay must use the same
+        value, or frames that a busy machine delivered late are paired live but given up
+        offline.
     wall_offset_ns : int
         UNIX ns minus host monotonic ns, from the first pair or wind sample.
     appliance_id : str
@@ -113,6 +118,7 @@ class Recording:
     config: dict[str, Any]
     frame_rate_hz: float
     tolerance_s: float | None
+    max_delay_s: float
     wall_offset_ns: int
     appliance_id: str
 
@@ -127,9 +133,11 @@ class Recording:
         text = meta.get("config", {}).get("yaml", "")
         config = (yaml.safe_load(text) or {}) if text.strip() else {}
         left = (config.get("cameras") or {}).get("left") or {}
+        pairing = config.get("pairing") or {}
         return cls(path=path, meta=meta, config=config,
                    frame_rate_hz=float(left.get("frame_rate_hz", 30.0)),
-                   tolerance_s=(config.get("pairing") or {}).get("tolerance_s"),
+                   tolerance_s=pairing.get("tolerance_s"),
+                   max_delay_s=float(pairing.get("max_delay_s", PairingConfig.max_delay_s)),
                    wall_offset_ns=_wall_offset(path),
                    appliance_id=meta.get("recording", {}).get("host") or path.stem)
 
@@ -213,7 +221,8 @@ class PairStream:
         from appliance.runtime.stamping import StereoStamper
         from drivers.camera.mcap_format import FrameLogReader
 
-        stamper = StereoStamper(self.rec.frame_rate_hz, self.rec.tolerance_s)
+        stamper = StereoStamper(self.rec.frame_rate_hz, self.rec.tolerance_s,
+                                self.rec.max_delay_s)
         reader = FrameLogReader(self.rec.path)
         index = 0
         try:
