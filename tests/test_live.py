@@ -314,3 +314,34 @@ def test_display_conversions() -> None:
     disp = np.array([[1.0, np.nan], [2.0, 3.0]])
     out = disparity_bgr(disp)
     assert out.shape == (2, 2, 3) and out[0, 1].sum() == 0
+
+
+def test_a_frame_without_pictures_never_replaces_one_with_them(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Workers send the full fields only when asked (``workers.pack_result``): the one
+    frame with pictures must reach the screen even when plot-only frames follow it."""
+    view = LiveView(_cfg(mode="save", file=tmp_path / "x.rrd"), max_image_hz=1000.0)
+    shown: list[tuple[int, bool]] = []
+    gate = threading.Event()
+
+    def slow_frame(f: LiveFrame) -> None:
+        gate.wait(10)
+        shown.append((f.frame, f.has_pictures))
+        view._last_image_ns = time.monotonic_ns()  # what showing its pictures does
+
+    monkeypatch.setattr(view, "_log_frame", slow_frame)
+    view.start()
+    img = np.zeros((4, 4), np.uint8)
+    assert view.push(LiveFrame(frame=0, t_capture_ns=0))  # taken at once, waits in the gate
+    time.sleep(0.2)
+    assert view.wants_pictures()
+    assert view.push(LiveFrame(frame=1, t_capture_ns=1, diff_left=img, raw_left=img))
+    assert not view.wants_pictures()  # one is waiting
+    assert not view.push(LiveFrame(frame=2, t_capture_ns=2))  # refused, counted
+    assert view.stats().dropped == 1
+    gate.set()
+    deadline = time.monotonic() + 10
+    while len(shown) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert view.close()
+    assert shown == [(0, False), (1, True)]

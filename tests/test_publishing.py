@@ -229,3 +229,66 @@ def test_operator_status_shows_the_summaries_rate_window() -> None:
     res.rate = FrameRate(7.0, (7.0,), "")
     pub.publish(res)
     assert monitor.status().rate_kg_h == pytest.approx(7.0 * 3.6)
+
+
+class _Flag:
+    """Stands in for the pool's shared ``fields_wanted`` value."""
+
+    def __init__(self) -> None:
+        self.value = 0
+
+
+class _PictureLive(FakeLive):
+    def __init__(self, wants: bool) -> None:
+        super().__init__()
+        self.wants = wants
+
+    def wants_pictures(self) -> bool:
+        return self.wants
+
+
+def _light(i: int) -> WorkerResult:
+    """A result as a worker packs it when no fields were asked for."""
+    res = _result(i)
+    for name in ("diff_left", "diff_right", "disparity", "disparity_change", "velocity",
+                 "valid", "raw_left"):
+        setattr(res, name, None)
+    return res
+
+
+def test_fields_are_asked_for_when_due_and_recorded_from_the_next_result_carrying_them(
+) -> None:
+    rec, flag = FakeRecorder(), _Flag()
+    pub = _publisher(rec, None, fields_every=3)
+    pub.fields_wanted = flag
+    pub.publish(_light(0))
+    assert flag.value == 0  # 1 of 3
+    pub.publish(_light(1))
+    assert flag.value == 1  # the next one is due: ask the workers now
+    flag.value = 0  # a worker took the request, but two light results were in flight
+    pub.publish(_light(2))
+    pub.publish(_light(3))
+    assert rec.topic("/sceneflow/velocity") == []  # due, but nothing to record
+    assert flag.value == 1  # still asking
+    pub.publish(_result(4))  # the first result with fields
+    assert len(rec.topic("/sceneflow/velocity")) == 1
+    assert len(rec.topic("/sceneflow/summary")) == 5  # every result's summary all the same
+    flag.value = 0
+    pub.publish(_light(5))
+    assert flag.value == 0  # 1 of 3 again
+
+
+def test_light_results_feed_the_monitor_and_plots_and_pictures_are_asked_for() -> None:
+    flag = _Flag()
+    live = _PictureLive(wants=True)
+    pub = _publisher(None, live, fields_every=1000)
+    pub.fields_wanted = flag
+    pub.publish(_light(0))
+    frame = live.items[-1]
+    assert not frame.has_pictures and frame.flow is not None and frame.gas_mask is not None
+    assert frame.gas_speed_m_s == pytest.approx(np.sqrt(2))
+    assert flag.value == 1  # the live view is ready for a picture
+    flag.value = 0
+    live.wants = False
+    pub.publish(_result(1))
+    assert live.items[-1].has_pictures and flag.value == 0

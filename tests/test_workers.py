@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
-from appliance.runtime.workers import share_of_stream
+import pickle
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from appliance.runtime.workers import WorkerResult, pack_result, share_of_stream
 
 
 def test_two_workers_take_every_other_triple_one_or_many_take_all() -> None:
@@ -42,3 +48,43 @@ print(round(held - base), round(rss_mb() - base))
     held, after = (int(v) for v in out)
     assert held > 300  # the burst (450 MB) stayed resident after it was freed
     assert after < 50
+
+
+def _chain_result(h: int = 6, w: int = 8) -> SimpleNamespace:
+    """The attributes of a SceneFlowResult that pack_result reads."""
+    mask = np.zeros((h, w), bool)
+    mask[2:4, 3:6] = True
+    return SimpleNamespace(
+        summary=SimpleNamespace(to_dict=lambda: {"valid": True}), timings_ms={"flow": 1.0},
+        dt_s=0.033, diff_scale=1.0, rejected_shifts=0, warm=True,
+        diff_left=np.full((3, h, w), 0.5), diff_right=np.full((3, h, w), 0.5),
+        flow=np.ones((h, w, 2), np.float32), disparity=np.full((h, w), 4.0, np.float32),
+        disparity_change=np.zeros((h, w), np.float32),
+        velocity=np.ones((h, w, 3), np.float32), valid=np.ones((h, w), bool), gas_mask=mask,
+        position=np.ones((h, w, 3), np.float32))
+
+
+@pytest.mark.parametrize("fields", [True, False])
+def test_a_result_without_fields_keeps_what_every_result_needs(fields: bool) -> None:
+    base = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=(0, 1, 2), t_wall_ns=0,
+                        skipped=0, done_mono_ns=0)
+    raw = np.zeros((6, 8), np.uint16)
+    res = pack_result(_chain_result(), base, raw_left=raw, fields=fields)  # type: ignore[arg-type]
+    # the leak events (flow, gas mask), the arrows and the summary travel always
+    assert res.flow is not None and res.gas_mask is not None and res.summary == {"valid": True}
+    assert res.points3d is not None and len(res.points3d) == 6 and res.warm
+    heavy = (res.velocity, res.disparity, res.disparity_change, res.valid, res.diff_left,
+             res.diff_right, res.raw_left)
+    assert res.has_fields is fields
+    assert all((a is not None) is fields for a in heavy)
+
+
+def test_a_result_without_fields_is_a_quarter_of_the_bytes_to_send() -> None:
+    sizes = {}
+    for fields in (True, False):
+        base = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=(0, 1, 2),
+                            t_wall_ns=0, skipped=0, done_mono_ns=0)
+        res = pack_result(_chain_result(240, 320), base,  # type: ignore[arg-type]
+                          raw_left=np.zeros((240, 320), np.uint16), fields=fields)
+        sizes[fields] = len(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
+    assert sizes[True] > 2.5e6 and sizes[False] < 0.3 * sizes[True], sizes

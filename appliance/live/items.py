@@ -69,6 +69,13 @@ class LiveFrame:
     pixels: np.ndarray | None = None
     raw_left: np.ndarray | None = None
 
+    @property
+    def has_pictures(self) -> bool:
+        """Whether it carries the pictures (differential images, disparity, IR): results
+        without them (``workers.pack_result``) feed the plots only."""
+        return any(a is not None for a in (self.diff_left, self.diff_right, self.disparity,
+                                           self.raw_left))
+
 
 @dataclass
 class LiveScalars:

@@ -110,8 +110,9 @@ class LiveView:
         """Hand an item to the live thread; never waits on Rerun.
 
         A frame or status replaces the one of its kind not yet shown (that one is counted
-        as dropped); a health sample is refused (False, counted) when ``live.queue_size``
-        wait already. False as well when the view is not running.
+        as dropped), except that a frame without pictures never replaces one with them (it
+        is refused instead); a health sample is refused (False, counted) when
+        ``live.queue_size`` wait already. False as well when the view is not running.
         """
         if self._thread is None:
             return False
@@ -125,11 +126,25 @@ class LiveView:
                 self._stats.dropped += self._status is not None
                 self._status = item
             else:
+                if (not item.has_pictures and self._frame is not None
+                        and self._frame.has_pictures):
+                    self._stats.dropped += 1  # keep the pictures waiting to be shown
+                    return False
                 self._stats.dropped += self._frame is not None
                 self._frame = item
             self._stats.pushed += 1
             self._wake.notify()
         return True
+
+    def wants_pictures(self) -> bool:
+        """Whether a frame with pictures would be shown now (``max_image_hz``) and none
+        waits: the daemon then asks the workers for the full fields of their next result."""
+        if self._thread is None:
+            return False
+        with self._wake:
+            if self._frame is not None and self._frame.has_pictures:
+                return False
+        return time.monotonic_ns() - self._last_image_ns >= self._image_period_ns
 
     def stats(self) -> LiveStats:
         """A copy of the counters."""
@@ -326,6 +341,8 @@ class LiveView:
 
         self._set_time(f.frame, f.t_capture_ns)
         self._log_plots(f)
+        if not f.has_pictures:
+            return
         now = time.monotonic_ns()
         if now - self._last_image_ns < self._image_period_ns:
             return  # images at most max_image_hz: the browser must keep up (latency)

@@ -255,6 +255,7 @@ class Appliance:
         self.pool = WorkerPool(self.cfg, self.geometry, self.params, self.emission,
                                self._handle_result, self.counters).start(stack, self._spawn)
         self.ring = self.pool.ring
+        self.publisher.fields_wanted = self.pool.fields_wanted
         stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
 
     def _note_peak_rss(self) -> None:

@@ -63,6 +63,8 @@ class WorkerPool:
         #: The anemometer's sonic temperature (K), shared with the workers for the gas
         #: temperature of the emission rate.
         self.sonic_k: Any = None
+        #: Set when the daemon wants the next result's full fields (``workers.worker_main``).
+        self.fields_wanted: Any = None
         self.counters = counters
         #: Peak resident memory of each worker, MB (filled by :meth:`stop`).
         self.peak_rss_mb: list[float | None] = []
@@ -90,6 +92,7 @@ class WorkerPool:
         self._stop = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
         self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
+        self.fields_wanted = self._mp.Value("b", 1, lock=False)
         stack.callback(self.stop)
         if self.cfg.processing.enabled:
             self._workers = [self._start_worker(i) for i in range(self.cfg.processing.workers)]
@@ -125,7 +128,8 @@ class WorkerPool:
         p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                              args=(i, self.ring.handle(), self._results, self._stop,
                                    self.geometry, self.params, self.cfg.processing.workers,
-                                   self.emission, self.sonic_k, self._shift_table),
+                                   self.emission, self.sonic_k, self._shift_table,
+                                   self.fields_wanted),
                              daemon=True)
         p.start()
         return p

@@ -64,6 +64,11 @@ class ResultPublisher:
         self._rate_sums = [0.0, 0.0, 0]  # measured window rate, true rate, results with both
         self.published = 0
         self.errors = 0
+        #: Results published since the last one whose fields were recorded.
+        self._since_fields = 0
+        #: Shared flag the workers read (``runtime.pool``): set when the next result should
+        #: carry its full fields; None (replay, tests) = every result carries them.
+        self.fields_wanted: Any = None
         # Running sums for truth_comparison(): a list of every result would grow the
         # daemon without bound (about 65 MB/h at the default configuration).
         self._truth_n = 0
@@ -100,8 +105,10 @@ class ResultPublisher:
         """Record (and show) one result; returns its summary, or None for a failed one.
 
         ``fields`` says whether to record the full fields; None: every ``fields_every``-th
-        published result (live), a bool: the caller decides (replay chooses by triple index,
-        so that segmenting does not change which triples carry fields).
+        published result (live; with :attr:`fields_wanted` the first result that carries
+        them once that many were published, usually one or two later), a bool: the caller
+        decides (replay chooses by triple index, so that segmenting does not change which
+        triples carry fields).
         """
         if res.error is not None:
             self.errors += 1
@@ -129,11 +136,14 @@ class ResultPublisher:
         truth = None if self.truth_for is None else self.truth_for(res.pair_indices[0])
         with self._lock:
             self.published += 1
+            self._since_fields += 1
             self._add_truth(truth, summary)
             if self.summaries is not None:
                 self.summaries.append(summary)
-            record_fields = (self.published % self.fields_every == 0 if fields is None
-                             else fields)
+            due = self._since_fields >= self.fields_every if fields is None else fields
+            record_fields = due and res.has_fields
+            if record_fields:
+                self._since_fields = 0
         if self.recorder is not None and record_fields:
             self._record_fields(res, t1)
         if self.live is not None:
@@ -141,6 +151,10 @@ class ResultPublisher:
         if self.monitor is not None and res.gas_mask is not None and res.flow is not None:
             self.monitor.on_result(summary["t_wall_ns"], res.pair_indices[1], res.gas_mask,
                                    res.flow, summary, wind=wind, rate=res.rate, window=window)
+        if self.fields_wanted is not None and (
+                self._since_fields + 1 >= self.fields_every
+                or (self.live is not None and self.live.wants_pictures())):
+            self.fields_wanted.value = 1
         return summary
 
     def _emission(self, res: WorkerResult, est: RateEstimate) -> dict[str, Any]:
@@ -211,7 +225,8 @@ class ResultPublisher:
         self.live.push(LiveFrame(
             frame=res.pair_indices[1], t_capture_ns=self.wall_ns(t1),
             diff_left=res.diff_left, diff_right=res.diff_right, flow=res.flow,
-            disparity=np.where(res.valid, res.disparity, np.nan).astype(np.float32),
+            disparity=None if res.disparity is None or res.valid is None
+            else np.where(res.valid, res.disparity, np.nan).astype(np.float32),
             gas_mask=res.gas_mask, points3d=res.points3d, velocity3d=res.velocity3d,
             pixels=res.pixels, raw_left=res.raw_left,
             gas_speed_m_s=summary["speed_m_s"] if ok else None,

@@ -76,6 +76,11 @@ class WorkerResult:
     rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
     warm: bool = False  # the solvers started from the worker's previous triple
 
+    @property
+    def has_fields(self) -> bool:
+        """Whether the full fields came along (see :func:`pack_result`)."""
+        return self.velocity is not None
+
 
 @dataclass(frozen=True)
 class EmissionSetup:
@@ -164,23 +169,30 @@ def _to_u8(image: np.ndarray) -> np.ndarray:
 
 
 def pack_result(res: SceneFlowResult, base: WorkerResult,
-                raw_left: np.ndarray | None = None) -> WorkerResult:
+                raw_left: np.ndarray | None = None, *, fields: bool = True) -> WorkerResult:
     """Fill ``base`` with what the daemon needs from a chain result (and the raw left frame
-    at t0, which the operator's view shows under the gas overlay)."""
+    at t0, which the operator's view shows under the gas overlay).
+
+    Without ``fields`` only what every result needs travels - summary, flow and gas mask
+    (the leak events), the gas arrows - about 0.7 MB instead of 2.6 MB at 320x240: the
+    daemon records the full fields of every N-th result and shows pictures a few times a
+    second, and pickling, piping and unpickling the rest cost both processes ~2-3 ms each.
+    """
     base.summary = res.summary.to_dict()
     base.timings_ms = dict(res.timings_ms)
     base.dt_s = res.dt_s
     base.diff_scale = res.diff_scale
     base.rejected_shifts = res.rejected_shifts
     base.warm = bool(res.warm)
-    base.diff_left = _to_u8(res.diff_left[0])
-    base.diff_right = _to_u8(res.diff_right[0])
     base.flow = res.flow
-    base.disparity = res.disparity
-    base.disparity_change = res.disparity_change
-    base.velocity = res.velocity
-    base.valid = res.valid
     base.gas_mask = res.gas_mask
+    if fields:
+        base.diff_left = _to_u8(res.diff_left[0])
+        base.diff_right = _to_u8(res.diff_right[0])
+        base.disparity = res.disparity
+        base.disparity_change = res.disparity_change
+        base.velocity = res.velocity
+        base.valid = res.valid
     sel = np.flatnonzero((res.gas_mask & res.valid).ravel())
     if sel.size > MAX_ARROWS:
         sel = sel[:: int(np.ceil(sel.size / MAX_ARROWS))]
@@ -188,7 +200,7 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
     base.velocity3d = res.velocity.reshape(-1, 3)[sel].copy()
     w = res.gas_mask.shape[1]
     base.pixels = np.column_stack([sel % w, sel // w]).astype(np.int32)
-    if raw_left is not None:
+    if raw_left is not None and fields:
         base.raw_left = np.array(raw_left, copy=True)
     return base
 
@@ -226,6 +238,7 @@ def worker_main(
     emission: EmissionSetup | None = None,
     sonic_k: Any = None,
     shift_table: Any = None,
+    fields_wanted: Any = None,
 ) -> None:
     """Body of one worker process; returns when ``stop`` (an Event) is set.
 
@@ -249,6 +262,10 @@ def worker_main(
         The anemometer's latest sonic temperature, K (NaN: none yet).
     shift_table : shared array or None
         Registration shifts shared by the workers (:mod:`appliance.runtime.shiftshare`).
+    fields_wanted : multiprocessing.Value or None
+        Set by the daemon when it wants the full fields (to record them, or a picture for
+        the live view); the worker that packs the next result sends them and clears it.
+        None: every result carries them.
     """
     from appliance.runtime.ring import PairRing
     from appliance.runtime.shiftshare import SharedShiftMemo
@@ -296,7 +313,10 @@ def worker_main(
             torn = undelivered = 0
             try:
                 res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
-                pack_result(res, base, raw_left=left[0])
+                full = fields_wanted is None or bool(fields_wanted.value)
+                if full and fields_wanted is not None:
+                    fields_wanted.value = 0  # two workers may both send: harmless
+                pack_result(res, base, raw_left=left[0], fields=full)
                 own += 1
                 if estimator is not None and emission is not None and (
                         own % emission.every == 0):
