@@ -7,7 +7,8 @@ live view shows the present: the newest frame and the newest status each wait in
 their own and replace an older one not yet shown (counted as dropped), so a slow viewer sees
 fewer frames, never older ones, and the 1 Hz status is never crowded out by frames; health
 samples (for plots) wait in a short queue of ``live.queue_size``. Images are encoded to JPEG
-in the live thread (not raw uint16: 9.4 MB/s at 2 x 30 Hz).
+in the live thread (not raw uint16: 9.4 MB/s at 2 x 30 Hz); what is drawn for each item is in
+:mod:`appliance.live.draw`.
 
 Modes (``live.mode``):
 
@@ -36,12 +37,11 @@ from typing import Any
 import numpy as np
 
 from appliance.config import LiveConfig
-from appliance.live import MAX_ARROWS
+from appliance.live import draw
 from appliance.live.blueprint import blueprint
-from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, ir_u8, to_u8
 from appliance.live.items import LiveFrame, LiveScalars, LiveStats, health_scalars
 from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
-from appliance.live.status import OperatorStatus, events_markdown, status_markdown
+from appliance.live.status import OperatorStatus
 from appliance.runtime.tuning import with_mimalloc_purge
 
 __all__ = [
@@ -56,12 +56,6 @@ __all__ = [
 log = logging.getLogger("ogiflow.live")
 
 APP_ID = "ogiflow"
-GAS_COLOR = (230, 120, 20)
-WIND_COLOR = (30, 110, 230)
-#: Arrows show the displacement over this many seconds (velocity in m/s times this).
-ARROW_SCALE_S = 0.2
-#: Operator view: px of arrow per m/s of in-plane gas velocity.
-ARROW_PX_PER_M_S = 12.0
 #: After each frame the live thread waits at most this long for Rerun to send what it logged.
 DRAIN_TIMEOUT_S = 2.0
 
@@ -248,7 +242,7 @@ class LiveView:
             self._rec.send_blueprint(self._pending_blueprint, make_active=True,
                                      make_default=True)
             self._pending_blueprint = None
-        self._log_styles()
+        draw.log_styles(self._log)
         while True:
             with self._wake:
                 while not (self._stop.is_set() or self._frame is not None
@@ -306,121 +300,26 @@ class LiveView:
     def _log(self, path: str, *args: Any, **kwargs: Any) -> None:
         self._rec.log(path, *args, **kwargs)
 
-    def _log_styles(self) -> None:
-        import rerun as rr
-
-        for quantity in ("speed", "angle/x", "angle/y", "angle/z"):
-            for src, color, label in (("gas", GAS_COLOR, "gas (scene flow)"),
-                                      ("wind", WIND_COLOR, "wind (anemometer)")):
-                self._log(f"plots/{quantity}/{src}",
-                          rr.SeriesLines(colors=[color], names=[label], widths=[2.0]),
-                          static=True)
-        # The gas overlay of the operator's picture: class 1 = gas, in the gas colour.
-        self._log("operator/ir", rr.AnnotationContext(
-            [(0, "background", (0, 0, 0, 0)), (1, "gas", GAS_COLOR)]), static=True)
-        for name, color, label in (("measured", GAS_COLOR, "emission rate (kg/h)"),
-                                   ("truth", (0, 0, 0), "simulated release (kg/h)")):
-            self._log(f"operator/rate/{name}",
-                      rr.SeriesLines(colors=[color], names=[label], widths=[2.0]), static=True)
-        self._log("operator/wind", rr.SeriesLines(colors=[WIND_COLOR], names=["wind (m/s)"],
-                                                  widths=[2.0]), static=True)
-
     def _set_time(self, frame: int | None, t_ns: int) -> None:
         if frame is not None:
             self._rec.set_time("frame", sequence=int(frame))
         self._rec.set_time("capture_time", timestamp=np.datetime64(int(t_ns), "ns"))
 
-    def _image(self, path: str, bgr_or_gray: np.ndarray) -> None:
-        import rerun as rr
-
-        data = encode_jpeg(bgr_or_gray, self.cfg.jpeg_quality)
-        self._log(path, rr.EncodedImage(contents=data, media_type="image/jpeg"))
-
     def _log_frame(self, f: LiveFrame) -> None:
-        import rerun as rr
-
         self._set_time(f.frame, f.t_capture_ns)
-        self._log_plots(f)
+        draw.log_plots(self._log, f)
         if not f.has_pictures:
             return
         now = time.monotonic_ns()
         if now - self._last_image_ns < self._image_period_ns:
             return  # images at most max_image_hz: the browser must keep up (latency)
         self._last_image_ns = now
-        self._log_operator(f)
-        if f.diff_left is not None:
-            self._image("cam/left/diff", to_u8(f.diff_left))
-        if f.diff_right is not None:
-            self._image("cam/right/diff", to_u8(f.diff_right))
-        if f.flow is not None:
-            self._image("flow", flow_bgr(f.flow))
-        if f.disparity is not None:
-            self._image("disparity", disparity_bgr(f.disparity))
-        if f.gas_mask is not None:
-            self._image("gas/mask", to_u8(np.asarray(f.gas_mask, bool)))
-        if f.points3d is not None and f.velocity3d is not None:
-            pts = np.asarray(f.points3d, np.float32).reshape(-1, 3)
-            vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)
-            ok = np.isfinite(pts).all(1) & np.isfinite(vel).all(1)
-            pts, vel = pts[ok], vel[ok]
-            if len(pts) > MAX_ARROWS:
-                keep = np.linspace(0, len(pts) - 1, MAX_ARROWS).astype(int)
-                pts, vel = pts[keep], vel[keep]
-            self._log("gas/velocity3d", rr.Arrows3D(origins=pts, vectors=vel * ARROW_SCALE_S,
-                                                    colors=[GAS_COLOR]))
-
-    def _log_plots(self, f: LiveFrame) -> None:
-        import rerun as rr
-
-        for src, speed, angles in (("gas", f.gas_speed_m_s, f.gas_angles_deg),
-                                   ("wind", f.wind_speed_m_s, f.wind_angles_deg),
-                                   ("truth", f.truth_speed_m_s, f.truth_angles_deg)):
-            if speed is not None and np.isfinite(speed):
-                self._log(f"plots/speed/{src}", rr.Scalars(float(speed)))
-            if angles is not None:
-                for axis, a in zip("xyz", angles, strict=True):
-                    if a is not None and np.isfinite(a):
-                        self._log(f"plots/angle/{axis}/{src}", rr.Scalars(float(a)))
-
-    def _log_operator(self, f: LiveFrame) -> None:
-        """The operator's picture: raw IR, the gas region in colour, in-plane velocity."""
-        import rerun as rr
-
-        if f.raw_left is None:
-            return
-        self._image("operator/ir", ir_u8(f.raw_left))
-        if f.gas_mask is not None:
-            self._log("operator/ir/gas", rr.SegmentationImage(
-                np.asarray(f.gas_mask, np.uint8), opacity=0.45))
-        if f.pixels is not None and f.velocity3d is not None and len(f.pixels):
-            pix = np.asarray(f.pixels, np.float32).reshape(-1, 2)
-            vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)
-            ok = np.isfinite(vel).all(1)
-            pix, vel = pix[ok], vel[ok]
-            if len(pix) > MAX_ARROWS // 4:  # a readable picture: fewer, longer arrows
-                keep = np.linspace(0, len(pix) - 1, MAX_ARROWS // 4).astype(int)
-                pix, vel = pix[keep], vel[keep]
-            self._log("operator/ir/velocity", rr.Arrows2D(
-                origins=pix, vectors=vel[:, :2] * ARROW_PX_PER_M_S, colors=[GAS_COLOR]))
+        draw.log_pictures(self._log, f, self.cfg.jpeg_quality)
 
     def _log_status(self, s: OperatorStatus) -> None:
-        import rerun as rr
-
         self._set_time(None, s.t_capture_ns)
-        self._log("operator/status", rr.TextDocument(status_markdown(s),
-                                                     media_type=rr.MediaType.MARKDOWN))
-        self._log("operator/events", rr.TextDocument(events_markdown(s.events),
-                                                     media_type=rr.MediaType.MARKDOWN))
-        for name, v in (("measured", s.rate_kg_h), ("truth", s.true_rate_kg_h)):
-            if v is not None and np.isfinite(v):
-                self._log(f"operator/rate/{name}", rr.Scalars(float(v)))
-        if s.wind_m_s is not None and all(np.isfinite(s.wind_m_s)):
-            self._log("operator/wind", rr.Scalars(float(np.linalg.norm(s.wind_m_s))))
+        draw.log_status(self._log, s)
 
     def _log_scalars(self, s: LiveScalars) -> None:
-        import rerun as rr
-
         self._set_time(s.frame, s.t_capture_ns)
-        for name, value in s.values.items():
-            if value is not None and np.isfinite(value):
-                self._log(f"{s.prefix}/{name}", rr.Scalars(float(value)))
+        draw.log_scalars(self._log, s)
