@@ -18,8 +18,6 @@ per condition, no scene worse than 20 % / 20 deg).
 
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
@@ -29,18 +27,14 @@ from typing import Any
 import cv2
 import numpy as np
 
+from appliance.evaluation.gas_cache import gas_frames
 from appliance.evaluation.sceneflow import Log, Metrics, aggregate, evaluate_frames
 from processing.chain import ChainParameters, StereoGeometry
-from processing.synthetic.cameras import GasFrame, StereoRenderer
+from processing.synthetic.cameras import StereoRenderer
 from processing.synthetic.config import RenderOptions, SequenceConfig, synthetic_calibration
 from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.presets import preset_field
-from processing.synthetic.render import GroundTruth
-from processing.synthetic.sequences import SyntheticStereoScene
 from processing.synthetic.storage import SyntheticFrame
-
-#: Bump when the simulation or the cache layout changes (invalidates cached gas frames).
-CACHE_VERSION = 1
 
 #: The warm object of the matrix: a 0.4 m disk 8 m away (behind the plume at 5.5 m, in
 #: front of the plant wall at 12 m), 10 K above ambient, crossing the view at 1.2 m/s
@@ -240,61 +234,6 @@ def chain_parameters(config: SequenceConfig) -> ChainParameters:
     d0 = float(np.floor(cam.s_px * cam.b_m / z_far))
     return ChainParameters(d0=d0, sgm_num_disparities=64,
                            disparity_options=dict(FIELD_DISPARITY_OPTIONS))
-
-
-# ---------------------------------------------------------------------------- gas cache
-
-
-def _cache_key(config: SequenceConfig) -> str:
-    meta = config.meta()
-    for k in ("options", "background", "radiometry", "counts_model"):
-        meta.pop(k, None)
-    meta["version"] = CACHE_VERSION
-    text = json.dumps(meta, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _save_gas(path: Path, gas: GasFrame) -> None:
-    gt = gas.truth
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez_compressed(tmp, index=gas.index, t_s=gas.t_s,
-                        column_left=gas.column_left.astype(np.float32),
-                        column_right=gas.column_right.astype(np.float32),
-                        velocity=gt.velocity, position=gt.position, mask=gt.mask,
-                        column=gt.column_density_ppm_m)
-    tmp.replace(path)
-
-
-def _load_gas(path: Path) -> GasFrame:
-    with np.load(path) as z:
-        truth = GroundTruth(velocity=z["velocity"], position=z["position"], mask=z["mask"],
-                            column_density_ppm_m=z["column"])
-        return GasFrame(index=int(z["index"]), t_s=float(z["t_s"]),
-                        column_left=z["column_left"].astype(np.float64),
-                        column_right=z["column_right"].astype(np.float64), truth=truth)
-
-
-def gas_frames(config: SequenceConfig, cache_dir: Path | None,
-               log: Log | None = None) -> list[GasFrame]:
-    """The gas of every frame of ``config`` (fluid + ray marching), cached per scene.
-
-    Camera effects are not part of the key: every condition of a scene shares one
-    simulation.
-    """
-    folder = None if cache_dir is None else cache_dir / f"gas-{_cache_key(config)}"
-    paths = [] if folder is None else [folder / f"gas_{i:04d}.npz"
-                                       for i in range(config.n_frames)]
-    if paths and all(p.is_file() for p in paths):
-        return [_load_gas(p) for p in paths]
-    if log is not None:
-        log(f"  simulating {config.n_frames} frames of the gas (cached afterwards)")
-    scene = SyntheticStereoScene(config)
-    frames = [scene.next_gas() for _ in range(config.n_frames)]
-    if folder is not None:
-        folder.mkdir(parents=True, exist_ok=True)
-        for p, g in zip(paths, frames, strict=True):
-            _save_gas(p, g)
-    return frames
 
 
 # ---------------------------------------------------------------------------- evaluation
