@@ -110,6 +110,13 @@ def test_every_frame_and_wind_sample_is_recorded(recorded: dict) -> None:
     assert app.recorder.stats().messages_dropped == 0
 
 
+def test_peak_memory_is_reported_for_the_daemon_and_every_worker(recorded: dict) -> None:
+    app = recorded["app"]
+    peaks = app.peak_rss_mb
+    assert len(peaks) == 1 + app.cfg.processing.workers, peaks
+    assert all(mb is not None and 50 < mb < 4000 for mb in peaks), peaks
+
+
 def test_cold_starts_are_counted(recorded: dict) -> None:
     # Each worker's first triple starts cold and, at ring stride 2 on a machine that keeps
     # up, most later ones warm from the worker's previous triple: the count shows which.

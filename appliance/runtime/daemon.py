@@ -259,7 +259,7 @@ class Appliance:
         stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
 
     def _note_peak_rss(self) -> None:
-        self.peak_rss_mb = [peak_rss_mb(None), *self.pool.peak_rss_mb]
+        self.peak_rss_mb = [peak_rss_mb(None), *self.pool.worker_peak_rss_mb()]
 
     def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
         from appliance.runtime.monitor import monitor_from_config

@@ -66,8 +66,6 @@ class WorkerPool:
         #: Set when the daemon wants the next result's full fields (``workers.worker_main``).
         self.fields_wanted: Any = None
         self.counters = counters
-        #: Peak resident memory of each worker, MB (filled by :meth:`stop`).
-        self.peak_rss_mb: list[float | None] = []
         self._workers: list[Any] = []
         self._done = threading.Event()
         self._thread: threading.Thread | None = None
@@ -111,10 +109,13 @@ class WorkerPool:
             self.counters.worker_restarts += 1
             self._workers[i] = self._start_worker(i)
 
+    def worker_peak_rss_mb(self) -> list[float | None]:
+        """Peak resident memory of each worker, MB (None: unknown); while they run."""
+        return [peak_rss_mb(p.pid) for p in self._workers]
+
     def stop(self) -> None:
         """Stop the workers (terminate those that do not stop within 2 s), then the results
         thread once it has taken what is queued."""
-        self.peak_rss_mb = [peak_rss_mb(p.pid) for p in self._workers]
         self._stop.set()
         for p in self._workers:
             p.join(timeout=2.0)
