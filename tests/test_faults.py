@@ -180,7 +180,7 @@ def test_killed_worker_is_replaced(scene_cache: Path, tmp_path: Path) -> None:
 
     def scenario() -> None:
         wait_for(app, lambda: c.results >= 2, "first results (numba loading)", 240)
-        os.kill(app._workers[0].pid, signal.SIGKILL)
+        os.kill(app.pool.workers[0].pid, signal.SIGKILL)
         t_kill = time.monotonic()
         wait_for(app, lambda: c.worker_restarts == 1, "a new worker")
         before = c.results

@@ -109,6 +109,11 @@ class WorkerPool:
             self.counters.worker_restarts += 1
             self._workers[i] = self._start_worker(i)
 
+    @property
+    def workers(self) -> list[Any]:
+        """The worker processes now running (``multiprocessing.Process``)."""
+        return list(self._workers)
+
     def worker_peak_rss_mb(self) -> list[float | None]:
         """Peak resident memory of each worker, MB (None: unknown); while they run."""
         return [peak_rss_mb(p.pid) for p in self._workers]
