@@ -14,6 +14,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -120,27 +121,35 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def interrupt_cli(args: Sequence[str], ready: Callable[[], bool], *, after_s: float = 0.0,
+def interrupt_cli(args: Sequence[str], ready: Callable[[str], bool], *, after_s: float = 0.0,
                   timeout_s: float = 120.0) -> tuple[int, str]:
-    """Run ``python -m appliance ARGS`` from this checkout, Ctrl-C it once ``ready()``.
+    """Run ``python -m appliance ARGS`` from this checkout, Ctrl-C it once ``ready(output)``.
 
-    Waits at most ``timeout_s`` for ``ready``, then ``after_s`` more; returns the exit code
-    and the combined output. The process is killed if it does not end.
+    ``ready`` gets the combined output so far (a condition on progress lines does not depend
+    on how fast a loaded machine runs). Waits at most ``timeout_s`` for it, then ``after_s``
+    more; returns the exit code and the combined output. The process is killed if it does
+    not end.
     """
     root = Path(__file__).resolve().parent.parent
     env = {**os.environ, "PYTHONPATH": str(root)}
     proc = subprocess.Popen([sys.executable, "-m", "appliance", *args], cwd=root, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             preexec_fn=_default_sigint)
+    lines: list[str] = []
+    assert proc.stdout is not None
+    reader = threading.Thread(target=lambda: lines.extend(iter(proc.stdout.readline, "")),
+                              daemon=True)
+    reader.start()
     try:
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and not ready():
+        while time.monotonic() < deadline and not ready("".join(lines)):
             time.sleep(0.02)
         time.sleep(after_s)
         proc.send_signal(signal.SIGINT)
-        text, _ = proc.communicate(timeout=60)
+        proc.wait(timeout=60)
+        reader.join(timeout=10)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    return proc.returncode, text
+    return proc.returncode, "".join(lines)

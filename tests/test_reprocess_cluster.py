@@ -141,7 +141,7 @@ def test_interrupt_then_rerun_does_only_the_missing_segments(
     args = ["reprocess", str(src), "--out", str(out), "--address", cluster.address,
             "--segment-s", "1", "--fields-every", "1000"]
     manifest = out / "manifest.jsonl"
-    code, text = interrupt_cli(args, lambda: manifest.is_file() and manifest.read_text().count(
+    code, text = interrupt_cli(args, lambda _out: manifest.is_file() and manifest.read_text().count(
         '"kind": "segment"') >= 2)
     assert code == cli.EXIT_INTERRUPTED, text
     done_before = manifest.read_text().count('"kind": "segment"')

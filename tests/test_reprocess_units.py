@@ -133,9 +133,10 @@ def test_replay_of_a_recording_cut_by_kill_9_warns_and_keeps_everything_before(
 def test_replay_ctrl_c_leaves_a_valid_file_with_what_was_processed(tmp_path: Path) -> None:
     src = write_recording(tmp_path / "long.mcap", 240)  # 8 s at the recorded pace
     out = tmp_path / "out.mcap"
+    # Ctrl-C once 100 triples are done (paced, so about 140 remain): waiting a fixed time
+    # after the output file appeared left no triple done on a machine under load.
     code, err = interrupt_cli(["replay", str(src), "--out", str(out)],
-                              lambda: bool(list(tmp_path.glob(".out.mcap.*.part"))),
-                              after_s=3.0)  # paced: about 90 frames in
+                              lambda text: "100 triples processed" in text)
     assert code == cli.EXIT_INTERRUPTED, err
     assert "interrupted" in err
     with open(out, "rb") as f:  # finished: summary and index present
