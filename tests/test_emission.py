@@ -185,6 +185,20 @@ def test_rate_window_mean_uncertainty_and_eviction() -> None:
     assert 0.02 < est.uncertainty_g_s < 0.1  # ~ 0.5 / sqrt(200) for white noise
 
 
+def test_rate_window_curtain_spread_is_the_frames_standard_errors_in_quadrature() -> None:
+    # Four frames at 2 g/s from curtains (1, 3): each frame's standard error of its curtain
+    # mean is std(1, 3) / sqrt(2) = 1. A one-curtain frame at 2 g/s counts as a frame but has
+    # no curtain spread, a frame without a rate counts for neither: sqrt(mean(1^2) / 5); the
+    # rates do not vary over time, so that is all.
+    win = RateWindow(window_s=10.0)
+    for k in range(4):
+        win.push(k * 0.1, FrameRate(2.0, (1.0, 3.0)))
+    win.push(0.45, FrameRate(None, (), "no gas"))
+    est = win.push(0.5, FrameRate(2.0, (2.0,)))
+    assert est.frames == 5 and est.frames_total == 6
+    assert est.uncertainty_g_s == pytest.approx(np.sqrt(4 * 1.0 / 4 / 5))
+
+
 def test_background_model_ignores_gas_samples() -> None:
     bg = BackgroundModel(capacity=20, min_samples=5, refresh=1)
     rng = np.random.default_rng(2)
