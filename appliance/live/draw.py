@@ -142,6 +142,3 @@ def log_scalars(log: Log, s: LiveScalars) -> None:
     for name, value in s.values.items():
         if value is not None and np.isfinite(value):
             log(f"{s.prefix}/{name}", rr.Scalars(float(value)))
-
-
-__all__ = ["log_pictures", "log_plots", "log_scalars", "log_status", "log_styles"]
