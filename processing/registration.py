@@ -16,8 +16,12 @@ that dominates it (the gas is semi-transparent and faint). Two steps:
    resampled at x + d with bicubic interpolation and d is updated from the linearised
    residual, with Cauchy weights so that the gas and moving objects (large residuals) count
    less than the background. Both images are pre-smoothed slightly (Gaussian, sigma 1 px),
-   which widens the basin of convergence and averages out sensor noise. One iteration is a
-   single fused numba pass (sample, residual, weights, 2x2 normal equations).
+   which widens the basin of convergence and averages out sensor noise. The refinement runs
+   coarse to fine: on the half-resolution images until it converges, then on the full ones
+   from there (a few steps). Only a converged coarse fit goes on to full resolution: one
+   that does not converge is not camera jitter (moving gas in front of a featureless sky or
+   wall crawls for every iteration it is given), and at a quarter of the pixels it is
+   recognised at a quarter of the cost (measured: 9 -> 2.5 ms per rejected shift at 320x240).
 
 Convention: a shift d = (dx, dy) means ``moving(x + d) ~ reference(x)``, i.e. the content of
 ``moving`` is displaced by +d (to the right for dx > 0, downwards for dy > 0) with respect to
@@ -28,6 +32,7 @@ caller register each new frame against its predecessor only once and reuse the r
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
@@ -186,9 +191,10 @@ def estimate_shift_checked(
         Two frames of the same camera (raw or radiometrically corrected, any consistent
         intensity unit). H, W >= 16.
     max_iter : int
-        Most Gauss-Newton iterations after the phase-correlation start.
+        Most Gauss-Newton iterations after the phase-correlation start, per level (half
+        and full resolution).
     tol : float
-        Stop when the update is smaller than this (px).
+        Stop a level when the update is smaller than this (px of the level).
     border : int
         Pixels along each edge left out of the fit (mirrored samples after warping).
     smooth_sigma : float
@@ -242,23 +248,23 @@ def estimate_shift_checked(
     # note that cv2.phaseCorrelate (OpenCV 5.0) multiplies its inputs by the window in place.
     ref_half = cv2.pyrDown(ref)
     mov_half = cv2.pyrDown(mov)
-    (hx, hy), _ = cv2.phaseCorrelate(ref_half, mov_half, _hanning(ref_half.shape))
+    (hx, hy), _ = cv2.phaseCorrelate(ref_half.copy(), mov_half.copy(),
+                                     _hanning(ref_half.shape))
 
-    # Inverse-compositional style: the reference gradient is fixed, so the 2x2 normal
-    # matrix changes only through the robust weights.
-    gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
-    gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / 8.0)
-    inner = (slice(border, h - border), slice(border, w - border))
-    sxx = float(np.square(gx[inner], dtype=np.float64).sum())
-    syy = float(np.square(gy[inner], dtype=np.float64).sum())
-    sxy = float((gx[inner].astype(np.float64) * gy[inner]).sum())
-    n_inner = (h - 2 * border) * (w - 2 * border)
-    if sxx * syy - sxy * sxy <= 1e-12 * n_inner**2:
+    fine = _level(ref, mov, border)
+    if fine is None:
         raise ValueError("reference image has no texture: the translation cannot be measured")
+    coarse = (_level(ref_half, mov_half, (border + 1) // 2)
+              if min(ref_half.shape) >= MIN_REGISTRATION_SIZE else None)
+    # A coarse level too small, or without texture of its own (a fine-grained pattern that
+    # pyrDown averages away), is skipped: the fine level then refines alone.
+    levels = (fine,) if coarse is None else (coarse, fine)
+
+    def refine(from_: tuple[float, float]) -> tuple[tuple[float, float], bool, float]:
+        return _refine(levels, from_, robust_scale=robust_scale, max_iter=max_iter, tol=tol)
 
     start = (2.0 * hx, 2.0 * hy)
-    shift, converged, cost = _refine(ref, mov, gx, gy, start, border=border,
-                                     robust_scale=robust_scale, max_iter=max_iter, tol=tol)
+    shift, converged, cost = refine(start)
 
     def plausible(d: tuple[float, float]) -> bool:
         return max_shift is None or float(np.hypot(*d)) <= max_shift
@@ -273,9 +279,7 @@ def estimate_shift_checked(
             return shift, converged
         # Crawling towards a plausible shift (a warm object's residuals slow the robust
         # steps down: measured 20 iterations not enough, 100 converge): go on from there.
-        shift, converged, _cost = _refine(ref, mov, gx, gy, shift, border=border,
-                                          robust_scale=robust_scale, max_iter=max_iter,
-                                          tol=tol)
+        shift, converged, _cost = refine(shift)
         return shift, converged
     # Phase correlation found something else than the camera's shake: a warm object
     # moving across the view makes the strongest peak (its own motion, 3-3.5 px measured),
@@ -283,22 +287,70 @@ def estimate_shift_checked(
     # refinement from zero (jitter is small): the converged fit with the smaller residual
     # (median |r|: the static background) wins; a true shift beyond ``max_shift`` still
     # wins over a false local fit and is then rejected by the caller.
-    z_shift, z_converged, z_cost = _refine(ref, mov, gx, gy, (0.0, 0.0), border=border,
-                                           robust_scale=robust_scale, max_iter=max_iter,
-                                           tol=tol)
+    z_shift, z_converged, z_cost = refine((0.0, 0.0))
     if z_converged and (not converged or z_cost < cost):
         return z_shift, True
     return shift, converged
 
 
-def _refine(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
-            start: tuple[float, float], *, border: int, robust_scale: float, max_iter: int,
-            tol: float) -> tuple[tuple[float, float], bool, float]:
-    """Robust Gauss-Newton refinement of the shift from ``start``.
+@dataclass(frozen=True)
+class _Level:
+    """One resolution of the refinement: the (smoothed, normalised) images, the fixed
+    reference gradient (inverse-compositional style: the 2x2 normal matrix then changes
+    only through the robust weights) and the border left out of the fit, px."""
+
+    ref: np.ndarray
+    mov: np.ndarray
+    gx: np.ndarray
+    gy: np.ndarray
+    border: int
+
+
+def _level(ref: np.ndarray, mov: np.ndarray, border: int) -> _Level | None:
+    """A refinement level of ``ref`` and ``mov``, or None when ``ref`` has no texture
+    (its gradients' normal matrix is singular)."""
+    h, w = ref.shape
+    gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
+    gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / 8.0)
+    inner = (slice(border, h - border), slice(border, w - border))
+    sxx = float(np.square(gx[inner], dtype=np.float64).sum())
+    syy = float(np.square(gy[inner], dtype=np.float64).sum())
+    sxy = float((gx[inner].astype(np.float64) * gy[inner]).sum())
+    n_inner = (h - 2 * border) * (w - 2 * border)
+    if sxx * syy - sxy * sxy <= 1e-12 * n_inner**2:
+        return None
+    return _Level(ref, mov, gx, gy, border)
+
+
+def _refine(levels: tuple[_Level, ...], start: tuple[float, float], *, robust_scale: float,
+            max_iter: int, tol: float) -> tuple[tuple[float, float], bool, float]:
+    """Coarse-to-fine robust Gauss-Newton refinement of the shift from ``start``.
+
+    ``levels`` run coarsest first, each half the size of the next; ``start`` and the result
+    are in full-resolution px, ``tol`` in each level's own px. A level that does not
+    converge ends the refinement (module docstring). Returns (shift, converged, cost), cost
+    the Cauchy scale of the last level's residual.
+    """
+    shift, converged, cost = start, False, np.inf
+    for k, level in enumerate(levels):
+        f = 2.0 ** (len(levels) - 1 - k)  # full-resolution px per px of this level
+        s, converged, cost = _gauss_newton(level, (shift[0] / f, shift[1] / f),
+                                           robust_scale=robust_scale, max_iter=max_iter,
+                                           tol=tol)
+        shift = (s[0] * f, s[1] * f)
+        if not converged:
+            break
+    return shift, converged, cost
+
+
+def _gauss_newton(level: _Level, start: tuple[float, float], *, robust_scale: float,
+                  max_iter: int, tol: float) -> tuple[tuple[float, float], bool, float]:
+    """Robust Gauss-Newton refinement of the shift from ``start`` on one level (its px).
 
     Returns (shift, converged, cost), cost the Cauchy scale of the last residual (the
     median |r|, i.e. how well the static background fits; inf when it diverged).
     """
+    ref, mov, gx, gy, border = level.ref, level.mov, level.gx, level.gy, level.border
     h, w = ref.shape
     dx, dy = start
     c = np.inf

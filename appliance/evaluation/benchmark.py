@@ -42,10 +42,11 @@ __all__ = ["FRAME_RATE_HZ", "SOURCES", "STAGES", "BenchFrames", "StageTimes", "T
            "blob_frames", "field_frames", "geometry", "iter_triples", "load_average",
            "load_frames", "measure_stages", "measure_throughput", "single_thread"]
 
-#: Order in which stages are reported (the chain's ``timings_ms`` keys, without "total").
+#: Order in which stages are reported (the chain's ``timings_ms`` keys, without "total";
+#: "depth_gate" is 0 when the gate is off).
 STAGES: tuple[str, ...] = (
-    "preprocess", "flow", "disparity_init", "disparity", "velocity_quality", "segmentation",
-    "summary",
+    "preprocess", "depth_gate", "flow", "disparity_init", "disparity", "velocity_quality",
+    "segmentation", "summary",
 )
 
 
@@ -113,8 +114,8 @@ def _time_calls(calls: Any, runs: int) -> ChainTimes:
         total.append(result.timings_ms["total"])
         share = cpu[-1] / total[-1]
         for s in STAGES:
-            per_stage[s].append(result.timings_ms[s])
-            per_stage_cpu[s].append(result.timings_ms[s] * share)
+            per_stage[s].append(result.timings_ms.get(s, 0.0))
+            per_stage_cpu[s].append(result.timings_ms.get(s, 0.0) * share)
     return ChainTimes(
         stages_ms={s: statistics.median(v) for s, v in per_stage.items()},
         stages_cpu_est_ms={s: statistics.median(v) for s, v in per_stage_cpu.items()},
