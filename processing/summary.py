@@ -158,13 +158,17 @@ def summarize_frame(
 
     # A 'valid' pixel whose velocity is nevertheless non-finite is not averaged either:
     # nothing non-finite may reach a summary.
-    use = gas_mask & valid & np.all(np.isfinite(velocity), axis=2)
-    n = int(np.count_nonzero(use))
+    # (Tested at the gas pixels only: over the whole (H, W, 3) field the test was 2 % of a
+    # live worker's time, measured.)
+    cand = np.flatnonzero(gas_mask & valid)
+    v = velocity.reshape(-1, 3)[cand]
+    v = v[np.isfinite(v).all(axis=1)]
+    n = len(v)
     n_gas = int(np.count_nonzero(gas_mask))
     if n == 0:
         return GasSummary(False, 0, n_gas, None, None, None, c,
                           tuple(dict.fromkeys((*flags, "no_gas"))))
-    mean = velocity[use].astype(np.float64).mean(axis=0)
+    mean = v.astype(np.float64).mean(axis=0)
     angles = directional_angles(mean)
     vx, vy, vz = (float(x) for x in mean)
     speed = float(np.linalg.norm(mean))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -20,7 +22,7 @@ from processing.emission import (
     ppm_m_to_kg_m2,
     single_camera_rate,
 )
-from processing.emission.column import BackgroundModel
+from processing.emission.column import BackgroundModel, nanmedian_first_axis
 
 S_PX, CX, CY = 780.0, 159.5, 119.5
 H, W = 240, 320
@@ -212,6 +214,20 @@ def test_background_model_ignores_gas_samples() -> None:
     est = bg.estimate()
     assert est is not None and np.allclose(est, 10.0, atol=0.02)
     assert bg.fallback_fraction == 0.0
+
+
+@pytest.mark.parametrize("n", [1, 2, 7, 60])
+def test_nanmedian_first_axis_is_numpys_nanmedian(n: int) -> None:
+    rng = np.random.default_rng(n)
+    stack = rng.normal(0.0, 1.0, (n, 9, 11)).astype(np.float32)
+    stack[rng.random(stack.shape) < 0.4] = np.nan  # odd and even counts per pixel
+    stack[:, 0, 0] = np.nan  # a pixel without any sample
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        want = np.nanmedian(stack.astype(np.float64), axis=0)
+    got = nanmedian_first_axis(stack)
+    assert got.shape == (9, 11) and np.isnan(got[0, 0])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-6, equal_nan=True)
 
 
 def test_gas_cell_fit_recovers_a_known_coefficient() -> None:

@@ -108,6 +108,13 @@ def test_zones_and_evidence_from_fields() -> None:
     assert ev.gas_pixels == 20 * (140 - 81)  # only the part right of the ignore zone (x > 80)
     assert ev.coherence == pytest.approx(1.0)
     assert ev.source_xy is not None and 80 <= ev.source_xy[0] <= 84 and ev.rate_g_s == 1.0
+    # the same from the flow at the gas pixels only (what a live worker sends)
+    sparse = evidence_from_fields(1.0, 3, mask, flow[mask], zones, rate_g_s=1.0)
+    for name in ("gas_pixels", "coherence", "source_xy", "resultant", "flow_px", "on_border"):
+        assert getattr(sparse, name) == getattr(ev, name), name
+    np.testing.assert_array_equal(sparse.coverage, ev.coverage)
+    with pytest.raises(ValueError, match="gas pixels"):
+        evidence_from_fields(1.0, 3, mask, flow[mask][1:], zones)
     watch = zone_mask((h, w), watch=[((0, 0), (10, 0), (10, 10), (0, 10))])
     assert watch.sum() == 121
 

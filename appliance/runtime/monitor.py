@@ -76,6 +76,8 @@ class LeakMonitor:
 
         ``t_wall_ns`` is the daemon's wall time of the frame, a fixed offset from the
         monotonic clock (a step of the wall clock does not change event durations).
+        ``flow`` is the image-plane flow, whole (H, W, 2) or at the gas pixels (N, 2)
+        (:func:`~appliance.runtime.evidence.evidence_from_fields`).
         ``rate`` is this frame's emission estimate, ``window`` the publisher's windowed
         average after it (the one the summaries carry: one window, not two).
         """

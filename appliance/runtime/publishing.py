@@ -148,9 +148,10 @@ class ResultPublisher:
             self._record_fields(res, t1)
         if self.live is not None:
             self._push_live(res, summary, wind, truth, t1)
-        if self.monitor is not None and res.gas_mask is not None and res.flow is not None:
+        if self.monitor is not None and res.gas_mask is not None and res.gas_flow is not None:
             self.monitor.on_result(summary["t_wall_ns"], res.pair_indices[1], res.gas_mask,
-                                   res.flow, summary, wind=wind, rate=res.rate, window=window)
+                                   res.gas_flow, summary, wind=wind, rate=res.rate,
+                                   window=window)
         if self.fields_wanted is not None and (
                 self._since_fields + 1 >= self.fields_every
                 or (self.live is not None and self.live.wants_pictures())):

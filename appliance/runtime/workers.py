@@ -63,7 +63,8 @@ class WorkerResult:
     rejected_shifts: int = 0
     diff_left: np.ndarray | None = None  # uint8, 0.5 = no change
     diff_right: np.ndarray | None = None
-    flow: np.ndarray | None = None  # (H, W, 2) float32 px
+    flow: np.ndarray | None = None  # (H, W, 2) float32 px (with the fields only)
+    gas_flow: np.ndarray | None = None  # (N, 2) float32 px at the gas pixels, row-major
     disparity: np.ndarray | None = None  # float32 px
     disparity_change: np.ndarray | None = None
     velocity: np.ndarray | None = None  # (H, W, 3) float32 m/s
@@ -173,10 +174,11 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
     """Fill ``base`` with what the daemon needs from a chain result (and the raw left frame
     at t0, which the operator's view shows under the gas overlay).
 
-    Without ``fields`` only what every result needs travels - summary, flow and gas mask
-    (the leak events), the gas arrows - about 0.7 MB instead of 2.6 MB at 320x240: the
-    daemon records the full fields of every N-th result and shows pictures a few times a
-    second, and pickling, piping and unpickling the rest cost both processes ~2-3 ms each.
+    Without ``fields`` only what every result needs travels - summary, gas mask and the
+    flow at the gas pixels (the leak events), the gas arrows - about 0.1-0.3 MB instead of
+    2.6 MB at 320x240: the daemon records the full fields of every N-th result and shows
+    pictures a few times a second, and pickling, piping and unpickling the rest cost both
+    processes ~2-3 ms each.
     """
     base.summary = res.summary.to_dict()
     base.timings_ms = dict(res.timings_ms)
@@ -184,9 +186,10 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
     base.diff_scale = res.diff_scale
     base.rejected_shifts = res.rejected_shifts
     base.warm = bool(res.warm)
-    base.flow = res.flow
     base.gas_mask = res.gas_mask
+    base.gas_flow = res.flow.reshape(-1, 2)[np.flatnonzero(res.gas_mask)]
     if fields:
+        base.flow = res.flow
         base.diff_left = _to_u8(res.diff_left[0])
         base.diff_right = _to_u8(res.diff_right[0])
         base.disparity = res.disparity

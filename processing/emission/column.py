@@ -103,9 +103,9 @@ class BackgroundModel:
     wrong on a textured one, where the temporal history must be long enough (``capacity``)
     to see the pixel free of gas. :attr:`fallback_fraction` reports the share of filled
     pixels. The estimate is refreshed every ``refresh`` updates while the stack fills and
-    every ``capacity`` updates once it is full: a median over a full stack of 320 x 240
-    frames costs about 160 ms (measured), which every 5th triple took a third of a live
-    worker's time, while a background changes over minutes.
+    every ``capacity`` updates once it is full: a background changes over minutes, and a
+    median over a full stack of 320 x 240 frames costs 25 ms
+    (:func:`nanmedian_first_axis`; 160 ms with ``np.nanmedian``, measured).
 
     Parameters
     ----------
@@ -150,8 +150,7 @@ class BackgroundModel:
         frames, gas = self._frames[:n], self._gas[:n]
         free = np.where(gas, np.nan, frames)
         enough = (~gas).sum(axis=0) >= min(self.min_samples, n)
-        with np.errstate(all="ignore"):
-            own = np.nanmedian(np.where(enough[None], free, frames), axis=0)
+        own = nanmedian_first_axis(np.where(enough[None], free, frames))
         self.fallback_fraction = float(1.0 - enough.mean())
         if enough.any() and not enough.all():
             own = spatial_fill(own, enough)
@@ -165,6 +164,32 @@ class BackgroundModel:
     def frames(self) -> int:
         """Frames seen so far."""
         return self._count
+
+
+def nanmedian_first_axis(stack: np.ndarray) -> np.ndarray:
+    """Median over axis 0 ignoring NaN, as ``np.nanmedian(stack, axis=0)`` (NaN where a
+    column has no number), by one sort of the pixels' sample rows.
+
+    ``np.nanmedian`` takes a masked-array path for short axes: 160-290 ms for 60 frames of
+    320 x 240, this 25 ms (measured), the same values up to float rounding.
+
+    Parameters
+    ----------
+    stack : ndarray, shape (N, H, W), float
+
+    Returns
+    -------
+    ndarray, shape (H, W), float64
+    """
+    n = stack.shape[0]
+    rows = np.ascontiguousarray(stack.reshape(n, -1).T)
+    rows.sort(axis=1)  # NaN sort last
+    count = n - np.isnan(rows).sum(axis=1)
+    lo = np.take_along_axis(rows, np.maximum(count - 1, 0)[:, None] // 2, axis=1)[:, 0]
+    hi = np.take_along_axis(rows, (count // 2)[:, None].clip(max=n - 1), axis=1)[:, 0]
+    med = 0.5 * (lo.astype(np.float64) + hi)
+    med[count == 0] = np.nan
+    return med.reshape(stack.shape[1:])
 
 
 def spatial_fill(values: np.ndarray, known: np.ndarray, sigma_px: float = 8.0) -> np.ndarray:
