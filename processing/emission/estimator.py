@@ -186,7 +186,8 @@ class EmissionEstimator:
         z_typed = self.settings.typed_distance_m
         single_v = (single_camera_velocity(flow, z_typed, s, dt_s) if z_typed else None)
         z_single = np.full(gas_mask.shape, z_typed or 0.0)
-        flow_ok = np.all(np.isfinite(flow), axis=-1)
+        flow_ok = (np.isfinite(flow[..., 0]) & np.isfinite(flow[..., 1])
+                   if single_v is not None else None)
         curtains, st, sc = [], [], []
         for c in placement.curtains:
             f = curtain_flux(c, sigma_kg_m2, velocity, depth, valid, gas_mask,
