@@ -90,7 +90,8 @@ class SceneFlowResult:
     valid : ndarray of bool
         Pixels where V is defined (d > 0, d + d' > 0, finite).
     u_sf : ndarray, float32
-        Quality U_SF (Eq. 7); ``u_sf_valid`` marks pixels whose warps stayed inside.
+        Quality U_SF (Eq. 7) at the gas pixels (NaN elsewhere); ``u_sf_valid`` marks gas
+        pixels whose warps stayed inside.
     gas_mask : ndarray of bool
         Segmented gas region Omega_g (Eq. 9); ``phi`` is its embedding function.
     summary : GasSummary
@@ -325,15 +326,17 @@ def compute_scene_flow(
         dd = smooth_disparity_change(dd, history, flow * steps, params.temporal_weight)
     t = lap("disparity", t)
 
-    # Velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass.
+    seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
+    t = lap("segmentation", t)
+
+    # Velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF only
+    # on the gas, the region c_USF (Eq. 8) averages it over.
     velocity, position, valid, u_sf, u_sf_valid = velocity_and_quality(
         flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
         principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
-        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2)
+        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2,
+        quality_mask=seg.mask)
     t = lap("velocity_quality", t)
-
-    seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
-    t = lap("segmentation", t)
 
     quality = c_usf(u_sf, seg.mask, valid & u_sf_valid)
     summary = summarize_frame(velocity, valid, seg.mask, quality, tuple(flags))

@@ -54,8 +54,9 @@ def _grad_sq(f: np.ndarray, y: int, x: int) -> float:
 def _velocity_quality_rows(
     flow: np.ndarray, d: np.ndarray, dp: np.ndarray, il0: np.ndarray, ir0: np.ndarray,
     il1: np.ndarray, ir1: np.ndarray, x0: float, y0: float, s: float, b: float, dt: float,
-    gamma1: float, gamma2: float, eps: float, velocity: np.ndarray, position: np.ndarray,
-    valid: np.ndarray, u_sf: np.ndarray, u_sf_valid: np.ndarray,
+    gamma1: float, gamma2: float, eps: float, qmask: np.ndarray, use_qmask: bool,
+    velocity: np.ndarray, position: np.ndarray, valid: np.ndarray, u_sf: np.ndarray,
+    u_sf_valid: np.ndarray,
 ) -> None:
     h, w = d.shape
     fb = b / dt
@@ -97,6 +98,10 @@ def _velocity_quality_rows(
             position[y, x, 1] = py
             position[y, x, 2] = pz
 
+            if use_qmask and not qmask[y, x]:
+                u_sf[y, x] = np.nan
+                u_sf_valid[y, x] = False
+                continue
             # U_SF (Eq. 7) with the float32 arithmetic of the reference implementation.
             xf = np.float32(x)
             yf = np.float32(y)
@@ -123,6 +128,7 @@ def velocity_and_quality(
     images: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], *,
     principal_point: tuple[float, float], camera_constant: float, baseline: float, dt: float,
     gamma1: float = 0.05, gamma2: float = 0.5, eps: float = 0.001,
+    quality_mask: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Velocity V (Eq. 4), surface position and U_SF (Eq. 7) of every pixel in one pass.
 
@@ -138,6 +144,11 @@ def velocity_and_quality(
         (x0, y0) and s in px, b in m, the frame interval in s (f = 1/dt).
     gamma1, gamma2, eps
         Weights and Charbonnier epsilon of Eq. 6.
+    quality_mask : ndarray, shape (H, W), bool, optional
+        Compute U_SF only where True: the segmented gas, the only region Eq. 8 averages it
+        over (its three bicubic samples per pixel are most of this pass: at 320x240 4.5 ms
+        for every pixel, 1.2 ms with a sixth of them gas, 0.6 ms without gas; measured). Elsewhere ``u_sf`` is NaN and ``u_sf_valid``
+        False. None: every pixel.
 
     Returns
     -------
@@ -147,6 +158,7 @@ def velocity_and_quality(
         Where both V and the position are defined (module docstring).
     u_sf : (H, W) float32
     u_sf_valid : (H, W) bool
+        Where U_SF was computed and its warps stayed inside the images.
 
     Raises
     ------
@@ -172,12 +184,18 @@ def velocity_and_quality(
                          strict=True):
         if not np.isfinite(arr).all():
             raise ValueError(f"{name} contains NaN or infinite values")
+    if quality_mask is not None and (not isinstance(quality_mask, np.ndarray)
+                                     or quality_mask.shape != shape):
+        raise ValueError(f"quality_mask must have shape {shape}, got "
+                         f"{getattr(quality_mask, 'shape', type(quality_mask).__name__)}")
+    qmask = (np.ones((1, 1), np.bool_) if quality_mask is None
+             else np.ascontiguousarray(quality_mask, dtype=np.bool_))
     velocity = np.empty((*shape, 3), np.float32)
     position = np.empty((*shape, 3), np.float32)
     valid = np.empty(shape, np.bool_)
     u_sf = np.empty(shape, np.float32)
     u_sf_valid = np.empty(shape, np.bool_)
     _velocity_quality_rows(*f32, float(principal_point[0]), float(principal_point[1]), s, b, t,
-                           float(gamma1), float(gamma2), float(eps), velocity, position, valid,
-                           u_sf, u_sf_valid)
+                           float(gamma1), float(gamma2), float(eps), qmask,
+                           quality_mask is not None, velocity, position, valid, u_sf, u_sf_valid)
     return velocity, position, valid, u_sf, u_sf_valid

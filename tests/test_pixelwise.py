@@ -41,6 +41,22 @@ def test_fused_pass_matches_the_references() -> None:
     np.testing.assert_allclose(u_sf, ref_u, rtol=1e-5, atol=1e-6)
 
 
+def test_quality_only_where_asked_and_everything_else_unchanged() -> None:
+    flow, d, dp, *imgs = _inputs(2)
+    full = velocity_and_quality(flow, d, dp, tuple(imgs), dt=1 / 30, **GEO)
+    gas = np.zeros(d.shape, bool)
+    gas[5:15, 8:20] = True
+    part = velocity_and_quality(flow, d, dp, tuple(imgs), dt=1 / 30, **GEO, quality_mask=gas)
+    for a, b in zip(full[:3], part[:3], strict=True):  # velocity, position, valid
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(part[3][gas], full[3][gas])
+    np.testing.assert_array_equal(part[4][gas], full[4][gas])
+    assert np.isnan(part[3][~gas]).all() and not part[4][~gas].any()
+    with pytest.raises(ValueError, match="quality_mask"):
+        velocity_and_quality(flow, d, dp, tuple(imgs), dt=1 / 30, **GEO,
+                             quality_mask=gas[:-1])
+
+
 def test_non_finite_input_raises() -> None:
     flow, d, dp, *imgs = _inputs(1)
     d[3, 4] = np.nan
