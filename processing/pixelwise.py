@@ -147,8 +147,8 @@ def velocity_and_quality(
     quality_mask : ndarray, shape (H, W), bool, optional
         Compute U_SF only where True: the segmented gas, the only region Eq. 8 averages it
         over (its three bicubic samples per pixel are most of this pass: at 320x240 4.5 ms
-        for every pixel, 1.2 ms with a sixth of them gas, 0.6 ms without gas; measured). Elsewhere ``u_sf`` is NaN and ``u_sf_valid``
-        False. None: every pixel.
+        for every pixel, 1.2 ms with a sixth of them gas, 0.6 ms without gas; measured).
+        Elsewhere ``u_sf`` is NaN and ``u_sf_valid`` False. None: every pixel.
 
     Returns
     -------
