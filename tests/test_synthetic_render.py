@@ -280,3 +280,18 @@ def test_eq4_reference_inverts_eq4_on_a_rendered_frame() -> None:
                                atol=1e-5)
     with pytest.raises(ValueError, match="consecutive"):
         triplet_reference(f1, f0)
+
+
+def test_jitter_moves_the_gas_without_blurring_it() -> None:
+    from processing.synthetic.imaging import shift_image
+
+    yy, xx = np.mgrid[0:40, 0:50].astype(float)
+
+    def blob(cx: float, cy: float) -> np.ndarray:
+        return np.exp(-((xx - cx) ** 2 + (yy - cy) ** 2) / (2 * 3.0**2))
+
+    out = shift_image(blob(20.0, 18.0), (0.5, -0.37))
+    # content moves by +shift, as the background's shifted rays move it
+    np.testing.assert_allclose(out, blob(20.5, 17.63), atol=1e-4)
+    # the bilinear warp used before lost 2.6 % of the peak here (error 0.025)
+    assert out.max() > 0.999 * blob(20.5, 17.63).max()

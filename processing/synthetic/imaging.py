@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
-import cv2
 import numpy as np
+from scipy import ndimage
 
 _H_PLANCK = 6.62607015e-34
 _C_LIGHT = 2.99792458e8
@@ -276,12 +276,19 @@ def radiance_image(
 
 
 def shift_image(img: np.ndarray, shift_xy: tuple[float, float]) -> np.ndarray:
-    """Translate an image by a sub-pixel (dx, dy) (bilinear, edges replicated) - frame jitter."""
-    m = np.array([[1.0, 0.0, shift_xy[0]], [0.0, 1.0, shift_xy[1]]])
-    return cv2.warpAffine(
-        img.astype(np.float64), m, (img.shape[1], img.shape[0]),
-        flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE,
-    )
+    """Translate an image by a sub-pixel (dx, dy) - frame jitter of the rendered gas column.
+
+    Content moves by +shift (as :func:`processing.synthetic.geometry.ray_directions` moves
+    the background); quintic spline interpolation, edges replicated. A camera's jitter
+    moves the gas without blurring it: the bilinear warp used before (cv2, positions rounded
+    to 1/32 px) low-passed each frame's gas by its own fractional shift, so consecutive
+    frames and the two cameras saw differently blurred gas while the background, rendered
+    through shifted rays, stayed sharp. That alone took the chain's V_Z on an out-of-plane
+    scene from 5 % to 15-40 % RMVE under 0.3 px jitter (measured, robustness matrix,
+    session 9); the spline keeps a Gaussian blob's peak within 0.1 % at a half-pixel shift.
+    """
+    return ndimage.shift(np.asarray(img, np.float64), (float(shift_xy[1]), float(shift_xy[0])),
+                         order=5, mode="nearest")
 
 
 def to_counts(radiance: np.ndarray, model: CountsModel) -> np.ndarray:
