@@ -117,6 +117,14 @@ def test_peak_memory_is_reported_for_the_daemon_and_every_worker(recorded: dict)
     assert all(mb is not None and 50 < mb < 4000 for mb in peaks), peaks
 
 
+def test_where_the_chain_spends_its_time_is_reported(recorded: dict) -> None:
+    # the workers' own stage timings, as the final line and the keep-up warning give them
+    med = recorded["app"].stage_times.medians()
+    assert {"preprocess", "flow", "disparity", "segmentation", "total"} <= set(med), med
+    assert all(v >= 0 for v in med.values()) and med["total"] >= med["flow"]
+    assert recorded["app"].stage_times.describe().startswith("chain ")
+
+
 def test_cold_starts_are_counted(recorded: dict) -> None:
     # Each worker's first triple starts cold and, at ring stride 2 on a machine that keeps
     # up, most later ones warm from the worker's previous triple: the count shows which.

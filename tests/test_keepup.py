@@ -29,3 +29,18 @@ def test_keeping_up_is_reported_too() -> None:
 def test_bad_settings_raise(kwargs: dict) -> None:
     with pytest.raises(ValueError):
         KeepUpCheck(**kwargs)
+
+
+def test_stage_times_give_medians_and_the_slowest_stage() -> None:
+    from appliance.runtime.keepup import StageTimes
+
+    times = StageTimes(keep=3)
+    assert times.describe() is None  # nothing measured yet
+    for k in range(5):  # only the last 3 count: 20, 30, 40 ms of flow
+        times.add({"preprocess": 10.0, "flow": 10.0 * k, "total": 10.0 + 10.0 * k})
+    times.add({"preprocess": 10.0, "total": 50.0})  # a stage may be missing from a result
+    med = times.medians()
+    assert med == {"preprocess": 10.0, "flow": 30.0, "total": 50.0}  # 40, 50, 50
+    text = times.describe()
+    assert text is not None and text.startswith("chain 50.0 ms per triple")
+    assert "median of the last 3" in text and "flow 30.0" in text and "slowest flow" in text

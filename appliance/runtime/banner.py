@@ -28,6 +28,9 @@ def announce_end(app: Any) -> None:
         f"{100 * c.cold_results / max(c.results, 1):.0f} % of them started cold), "
         f"skipped {c.skipped_pairs} ({c.skipped_pairs / elapsed:.1f}/s), "
         f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+    where = app.stage_times.describe()
+    if where is not None:
+        sys.stderr.write(f"ogiflow: {where}\n")
     if app.peak_rss_mb:
         names = ["daemon", *(f"worker {i}" for i in range(len(app.peak_rss_mb) - 1))]
         sys.stderr.write("ogiflow: peak RSS (MB): " + ", ".join(

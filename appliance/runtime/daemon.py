@@ -38,7 +38,7 @@ from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
-from appliance.runtime.keepup import KeepUpCheck, peak_rss_mb
+from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.tuning import PeriodicTrim
@@ -86,6 +86,7 @@ class Appliance:
         #: Faults that end the run with exit code 1 (a thread died, files not finalised).
         self.failures: list[str] = []
         self._keep_up = KeepUpCheck()
+        self.stage_times = StageTimes()
         #: Peak resident memory of the daemon and each worker, MB (filled at shutdown).
         self.peak_rss_mb: list[float | None] = []
         self.t_start = time.monotonic()
@@ -116,10 +117,14 @@ class Appliance:
         self.health.stream("results").tick()
         if res.skipped:
             self.health.stream("skipped").tick(res.skipped)  # skipped triples per second
+        if res.error is None and res.timings_ms:
+            self.stage_times.add(res.timings_ms)
         verdict = self._keep_up.observe(time.monotonic(), self.counters.results + 1,
                                         self.counters.skipped_pairs)
         if verdict is not None:
-            (log.info if verdict[0] else log.warning)("%s", verdict[1])
+            where = self.stage_times.describe()
+            (log.info if verdict[0] else log.warning)(
+                "%s%s", verdict[1], "" if where is None else f"; {where}")
         if res.error is not None:
             self.counters.result_errors += 1
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)

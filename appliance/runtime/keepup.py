@@ -5,12 +5,18 @@ configuration that is too slow for its frame rate still runs - and silently sees
 of what the cameras deliver. :class:`KeepUpCheck` watches the processed and skipped triples
 over a measuring window that opens with the first result (so the workers' warm-up, numba
 loading its kernels, is not counted) and, at its end, returns one message: either the share
-processed is at least ``threshold``, or it is not and by how much.
+processed is at least ``threshold``, or it is not and by how much. :class:`StageTimes`
+says where the time goes: the median time of each stage of the chain over the last results
+(the workers measure every call), so that a site that cannot keep up knows which setting
+to lower.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import statistics
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 
@@ -69,6 +75,43 @@ class KeepUpCheck:
                        f"processed ({rate:.1f}/s, {s / elapsed:.1f}/s skipped) over the first "
                        f"{elapsed:.0f} s; lower the frame rate, add workers/cores, or reduce "
                        "the solvers' iterations (processing.parameters)")
+
+
+@dataclass
+class StageTimes:
+    """Median wall time of each chain stage over the last ``keep`` results, ms.
+
+    Fed with each result's ``timings_ms`` (:attr:`processing.chain.SceneFlowResult.
+    timings_ms`: one entry per stage and ``total``, measured in the worker).
+    """
+
+    keep: int = 300
+    _times: dict[str, deque[float]] = field(default_factory=dict)
+
+    def add(self, timings_ms: Mapping[str, float]) -> None:
+        """One result's stage times (ms); stages it does not name keep their history."""
+        for stage, ms in timings_ms.items():
+            q = self._times.get(stage)
+            if q is None:
+                q = self._times[stage] = deque(maxlen=self.keep)
+            q.append(float(ms))
+
+    def medians(self) -> dict[str, float]:
+        """{stage: median ms} in the order the stages were first seen."""
+        return {k: statistics.median(q) for k, q in self._times.items() if q}
+
+    def describe(self) -> str | None:
+        """"chain 58 ms per triple (median of the last N: preprocess 11, flow 15, ...;
+        slowest disparity)", or None before the first result."""
+        med = self.medians()
+        total = med.pop("total", None)
+        if total is None:
+            return None
+        n = len(self._times["total"])
+        parts = ", ".join(f"{k} {v:.1f}" for k, v in med.items())
+        slowest = max(med, key=med.__getitem__) if med else None
+        return (f"chain {total:.1f} ms per triple (median of the last {n}, ms: {parts}"
+                + (f"; slowest {slowest})" if slowest else ")"))
 
 
 def peak_rss_mb(pid: int | None) -> float | None:
