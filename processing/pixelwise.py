@@ -54,7 +54,7 @@ def _grad_sq(f: np.ndarray, y: int, x: int) -> float:
 def _velocity_quality_rows(
     flow: np.ndarray, d: np.ndarray, dp: np.ndarray, il0: np.ndarray, ir0: np.ndarray,
     il1: np.ndarray, ir1: np.ndarray, x0: float, y0: float, s: float, b: float, dt: float,
-    gamma1: float, gamma2: float, eps: float, qmask: np.ndarray, use_qmask: bool,
+    gamma1: float, gamma2: float, eps: float, qmask: np.ndarray,
     velocity: np.ndarray, position: np.ndarray, valid: np.ndarray, u_sf: np.ndarray,
     u_sf_valid: np.ndarray,
 ) -> None:
@@ -98,7 +98,7 @@ def _velocity_quality_rows(
             position[y, x, 1] = py
             position[y, x, 2] = pz
 
-            if use_qmask and not qmask[y, x]:
+            if not qmask[y, x]:
                 u_sf[y, x] = np.nan
                 u_sf_valid[y, x] = False
                 continue
@@ -188,7 +188,7 @@ def velocity_and_quality(
                                      or quality_mask.shape != shape):
         raise ValueError(f"quality_mask must have shape {shape}, got "
                          f"{getattr(quality_mask, 'shape', type(quality_mask).__name__)}")
-    qmask = (np.ones((1, 1), np.bool_) if quality_mask is None
+    qmask = (np.ones(shape, np.bool_) if quality_mask is None
              else np.ascontiguousarray(quality_mask, dtype=np.bool_))
     velocity = np.empty((*shape, 3), np.float32)
     position = np.empty((*shape, 3), np.float32)
@@ -196,6 +196,6 @@ def velocity_and_quality(
     u_sf = np.empty(shape, np.float32)
     u_sf_valid = np.empty(shape, np.bool_)
     _velocity_quality_rows(*f32, float(principal_point[0]), float(principal_point[1]), s, b, t,
-                           float(gamma1), float(gamma2), float(eps), qmask,
-                           quality_mask is not None, velocity, position, valid, u_sf, u_sf_valid)
+                           float(gamma1), float(gamma2), float(eps), qmask, velocity, position,
+                           valid, u_sf, u_sf_valid)
     return velocity, position, valid, u_sf, u_sf_valid

@@ -306,7 +306,7 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
     import cv2
 
     from processing.registration import warp_translation
-    from processing.synthetic.cameras import StereoRenderer
+    from processing.synthetic.cameras import PIXEL_SAMPLES, StereoRenderer
     from processing.synthetic.imaging import background_radiance
     from processing.synthetic.presets import preset_no_release
 
@@ -327,6 +327,8 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
         return float(np.sqrt(np.mean(low[12:-12, 12:-12] ** 2)))
 
     ren.config = replace(cfg, options=replace(cfg.options, moving_object=None))
-    area = residual(ren._pixel_mean((0.0, 0.0), 0.0, 0.0), ren._pixel_mean(shift, 0.0, 0.0))
+    n = PIXEL_SAMPLES
+    area = residual(ren._pixel_mean((0.0, 0.0), 0.0, 0.0, n),
+                    ren._pixel_mean(shift, 0.0, 0.0, n))
     single = residual(point((0.0, 0.0)), point(shift))
     assert area < 0.6 * single, (area, single)

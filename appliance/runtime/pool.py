@@ -83,8 +83,8 @@ class WorkerPool:
         self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
         self._mp = mp.get_context("spawn")
-        # About half a second of results: each carries 0.7 MB (2.6 MB with the full fields
-        # the daemon asked for), and a full queue is held in the workers' memory (64 made
+        # About half a second of results: each carries 0.1-0.3 MB (2.6 MB with the full
+        # fields the daemon asked for), and a full queue is held in the workers' memory (64 made
         # 130-160 MB steps when the daemon was starved of CPU). A result not taken within
         # 1 s is counted as a skipped triple.
         self._results = self._mp.Queue(maxsize=RESULTS_QUEUE_SIZE)

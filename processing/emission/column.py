@@ -148,9 +148,9 @@ class BackgroundModel:
         assert self._frames is not None and self._gas is not None
         n = min(self._count, self.capacity)
         frames, gas = self._frames[:n], self._gas[:n]
-        free = np.where(gas, np.nan, frames)
         enough = (~gas).sum(axis=0) >= min(self.min_samples, n)
-        own = nanmedian_first_axis(np.where(enough[None], free, frames))
+        # gas samples left out only where enough others remain (one pass over the stack)
+        own = nanmedian_first_axis(np.where(gas & enough[None], np.nan, frames))
         self.fallback_fraction = float(1.0 - enough.mean())
         if enough.any() and not enough.all():
             own = spatial_fill(own, enough)

@@ -93,37 +93,31 @@ class StereoRenderer:
         cfg = self.config
         opts, rad = cfg.options, cfg.radiometry
         shift = np.zeros(2)
-        dirs, column = self.dirs, column_ppm_m
-        s = (0.0, 0.0)
+        column = column_ppm_m
         if opts.jitter_px > 0:
             shift = self.rng.normal(0.0, opts.jitter_px, 2)
-            s = (float(shift[0]), float(shift[1]))
-            dirs = ray_directions(self.camera, s)
-            column = shift_image(column_ppm_m, s)
+            column = shift_image(column_ppm_m, (float(shift[0]), float(shift[1])))
         textured = (opts.moving_object is not None
                     or (cfg.background is not None and cfg.background.kind == "plant"))
-        if textured:
-            bg = self._pixel_mean(s, camera_x_m, t_s)
-        else:
-            bg = background_radiance(self.camera, rad, dirs, camera_x_m, t_s,
-                                     opts.moving_object, cfg.background)
+        bg = self._pixel_mean((float(shift[0]), float(shift[1])), camera_x_m, t_s,
+                              PIXEL_SAMPLES if textured else 1)
         img = radiance_image(column, bg, rad)
         if opts.noise_netd_k > 0:
             sigma = band_radiance_derivative(rad.t_bg_k, rad.band_um) * opts.noise_netd_k
             img = img + self.rng.normal(0.0, sigma, img.shape)
         return to_counts(img, model), shift
 
-    def _pixel_mean(self, shift: tuple[float, float], camera_x_m: float,
-                    t_s: float) -> np.ndarray:
-        """Background radiance averaged over each pixel's area (module docstring), (H, W)."""
+    def _pixel_mean(self, shift: tuple[float, float], camera_x_m: float, t_s: float,
+                    n: int) -> np.ndarray:
+        """Background radiance averaged over ``n`` x ``n`` rays spread over each pixel of a
+        detector shifted by ``shift`` px (module docstring), (H, W); n = 1: the centre ray."""
         cfg = self.config
-        n = PIXEL_SAMPLES
         total = np.zeros((self.camera.height, self.camera.width))
         for i in range(n):
             for j in range(n):
                 sub = (shift[0] + (i + 0.5) / n - 0.5, shift[1] + (j + 0.5) / n - 0.5)
-                total += background_radiance(self.camera, cfg.radiometry,
-                                             ray_directions(self.camera, sub), camera_x_m,
+                dirs = self.dirs if sub == (0.0, 0.0) else ray_directions(self.camera, sub)
+                total += background_radiance(self.camera, cfg.radiometry, dirs, camera_x_m,
                                              t_s, cfg.options.moving_object, cfg.background)
         return total / (n * n)
 
