@@ -230,12 +230,16 @@ def compute_scene_flow(
         timings[name] = (now - t) * 1e3
         return now
 
+    # Whether the scale comes from this triple's own differences (the depth gate then
+    # takes it again without the pixels it removes) or is set / tracked.
+    own_scale = False
     if params.diff_scale is not None:
         scale = params.diff_scale
     elif state is not None and state.scale is not None:
         scale = state.scale.scale
     else:
         scale = initial_scale(left, right, geometry, params)
+        own_scale = True
     known = known_shifts(state, times)
     # Checked before the warm start: the state then still holds the previous triple.
     follows = state is not None and state.follows(times)
@@ -269,7 +273,7 @@ def compute_scene_flow(
                                   dilate_px=params.max_motion_px)
         if gate.fraction > 0:
             flags.append("object_motion_rejected")
-            pl, pr, scale = apply_gate(pl, pr, gate, scale)
+            pl, pr, scale = apply_gate(pl, pr, gate, scale, renormalise=own_scale)
             blanked = (gate.left, gate.right)
         t = lap("depth_gate", t)
     flags.extend(preprocess_flags(pl, pr))

@@ -5,7 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from processing.depth_gate import out_of_band_motion
+from processing.depth_gate import DepthGate, apply_gate, out_of_band_motion
+from processing.preprocess import PreprocessedTriple
 
 H, W = 120, 320
 BAND = (40.0, 72.0)  # the gas's disparity band, px
@@ -63,3 +64,39 @@ def test_gas_alone_is_not_gated() -> None:
     left, right = _views([(gas, 50.0)])
     gate = out_of_band_motion(left, right, d_min=BAND[0], d_max=BAND[1], dilate_px=2)
     assert gate.fraction == 0.0 and not gate.left.any() and not gate.right.any()
+
+
+def _triple(raw: np.ndarray, scale: float) -> PreprocessedTriple:
+    diff = np.clip(0.5 + raw / (2 * scale), 0, 1).astype(np.float32)
+    return PreprocessedTriple(diff0=diff, diff1=diff.copy(), raw0=raw, raw1=raw.copy(),
+                              shifts=((0.0, 0.0), (0.0, 0.0)), rejected_shifts=0,
+                              rejected=(False, False))
+
+
+def _gated_scale(renormalise: bool) -> tuple[float, np.ndarray]:
+    """A faint gas texture (|D| <= 1) and a warm object (|D| = 20) that the gate removes;
+    the triple normalised with a scale of 20 (as the object set it)."""
+    gas, _ = _blob((200.0, 60.0), 50.0, seed=2)
+    raw = (gas / 0.3 * 0.5).astype(np.float32)
+    obj = np.zeros((H, W), bool)
+    obj[40:80, 20:60] = True
+    raw[obj] = 20.0
+    tri = _triple(raw, 20.0)
+    gate = DepthGate(left=obj, right=obj, fraction=float(obj.mean()))
+    pl, _, scale = apply_gate(tri, tri, gate, 20.0, renormalise=renormalise)
+    assert np.all(pl.diff0[obj] == 0.5) and np.all(pl.raw0[obj] == 0)  # removed either way
+    return scale, pl.diff0
+
+
+def test_a_scale_from_the_triple_itself_is_taken_again_without_the_object() -> None:
+    scale, diff = _gated_scale(renormalise=True)
+    assert 0.5 < scale < 1.5  # the gas's own 0.999 quantile, not the object's 20
+    assert np.abs(diff - 0.5).max() > 0.4  # the gas spans the grey levels again
+
+
+def test_a_tracked_scale_is_kept_when_the_gate_fires() -> None:
+    # A tracked scale comes from gated triples already; re-taking it from one triple's
+    # remaining pixels made it jump whenever the gate fired (README, field robustness).
+    scale, diff = _gated_scale(renormalise=False)
+    assert scale == 20.0
+    assert np.abs(diff - 0.5).max() < 0.05  # unchanged contrast
