@@ -18,6 +18,7 @@ from processing.emission import (
     fit_alpha,
     frame_rate,
     g_s_to_kg_h,
+    out_of_plane_deg,
     place_curtains,
     ppm_m_to_kg_m2,
     single_camera_rate,
@@ -199,6 +200,58 @@ def test_rate_window_curtain_spread_is_the_frames_standard_errors_in_quadrature(
     est = win.push(0.5, FrameRate(2.0, (2.0,)))
     assert est.frames == 5 and est.frames_total == 6
     assert est.uncertainty_g_s == pytest.approx(np.sqrt(4 * 1.0 / 4 / 5))
+
+
+@pytest.mark.parametrize(("vel", "expected"), [((1.0, 0.0, 0.0), 0.0), ((0.0, 0.0, 2.0), 90.0),
+                                               ((1.0, 0.0, 1.0), 45.0),
+                                               ((-0.6, 0.0, -1.8), 71.57)])
+def test_out_of_plane_angle_of_a_plume_on_the_optical_axis(
+        vel: tuple[float, float, float], expected: float) -> None:
+    # A plume centred on the principal point: its mean ray is the optical axis, so the
+    # angle is that of V against the X-Y plane. Pixels without gas or velocity, and their
+    # nonsense velocity, do not count; the column density weights.
+    gas = np.zeros((H, W), bool)
+    gas[100:140, 140:180] = True
+    valid = gas.copy()
+    valid[100:103] = False  # symmetric about the principal point: the mean ray stays on axis
+    valid[137:140] = False
+    velocity = np.zeros((H, W, 3))
+    velocity[gas] = vel
+    velocity[~valid] = (0.0, 0.0, 50.0)
+    sigma = np.where(gas, 1e-4, 0.0)
+    ang = out_of_plane_deg(sigma, velocity, valid, gas, principal_point=(159.5, 119.5),
+                           camera_constant=S_PX)
+    assert ang == pytest.approx(expected, abs=0.05)
+    assert out_of_plane_deg(sigma, velocity, np.zeros((H, W), bool), gas,
+                            principal_point=(CX, CY), camera_constant=S_PX) is None
+
+
+def test_out_of_plane_angle_is_measured_against_the_plumes_viewing_ray() -> None:
+    # Off axis, motion along the plume's own viewing ray is 90 deg out of the image plane
+    # (the camera sees none of it), though it has X and Z parts.
+    gas = np.zeros((H, W), bool)
+    gas[110:130, 290:310] = True
+    ray = np.array([300.0 - CX, 120.0 - CY, S_PX])
+    velocity = np.zeros((H, W, 3))
+    velocity[gas] = ray / np.linalg.norm(ray)
+    ang = out_of_plane_deg(np.where(gas, 1.0, 0.0), velocity, gas, gas, principal_point=(CX, CY),
+                           camera_constant=S_PX)
+    assert ang > 89.0
+
+
+def test_rate_window_flags_a_rate_whose_gas_moves_along_the_line_of_sight() -> None:
+    win = RateWindow(window_s=10.0)
+    for k in range(5):
+        est = win.push(k * 0.1, FrameRate(2.0, (2.0,), out_of_plane_deg=30.0))
+    assert est.out_of_plane_deg == pytest.approx(30.0) and est.flags == ()
+    for k in range(5, 20):
+        est = win.push(k * 0.1, FrameRate(2.0, (2.0,), out_of_plane_deg=75.0))
+    assert est.out_of_plane_deg == pytest.approx((5 * 30 + 15 * 75) / 20)
+    assert est.flags == ("line_of_sight",)
+    # A frame without a rate carries no angle; the single-camera rate has none at all.
+    est = win.push(2.1, FrameRate(None, (), "no gas"))
+    assert est.flags == ("line_of_sight",)
+    assert RateWindow().push(0.0, FrameRate(2.0, (2.0,))).out_of_plane_deg is None
 
 
 def test_background_model_ignores_gas_samples() -> None:

@@ -128,9 +128,28 @@ def test_eval_emission_command_writes_table_json_and_figure(tmp_path, capsys) ->
     res = json.loads(out.read_text())
     rec = res["a_tiny"]
     for key in ("true_release_g_s", "true_flux_g_s", "stereo_g_s", "stereo_uncertainty_g_s",
-                "single_camera_g_s"):
+                "single_camera_g_s", "out_of_plane_deg", "flags"):
         assert key in rec
+    assert rec["flags"] in ([], ["line_of_sight"])
+    assert rec["out_of_plane_deg"] is None or 0 <= rec["out_of_plane_deg"] <= 90
     assert rec["true_release_g_s"] > 0 and rec["distance_m"] == pytest.approx(4.0, abs=0.5)
     assert (tmp_path / "fig" / "a_tiny_rate.png").is_file()
     assert "a_tiny" in capsys.readouterr().out
     assert cli.main(["eval", "emission", "--data", str(tmp_path / "none")]) == cli.EXIT_USAGE
+
+
+def test_eval_emission_table_marks_a_line_of_sight_rate() -> None:
+    from appliance.evaluation.emission import format_table
+
+    def rec(angle: float, flags: list[str], wind_z: float) -> dict:
+        return {"true_release_g_s": 2.0, "true_flux_g_s": 1.5, "stereo_g_s": 1.8,
+                "stereo_uncertainty_g_s": 0.1, "single_camera_g_s": 1.6, "stereo_error": 0.2,
+                "single_camera_error": 0.07, "wind_m_s": [0.6, 0.0, wind_z], "distance_m": 5.2,
+                "camera_effects": False, "frames_defined": 4, "frames_total": 4,
+                "out_of_plane_deg": angle, "flags": flags}
+
+    table = format_table({"along_view": rec(62.0, ["line_of_sight"], 1.8),
+                          "across": rec(3.0, [], 0.0)})
+    rows = {line.split()[0]: line for line in table.splitlines()[2:4]}
+    assert rows["along_view"].endswith("62 deg LOS")
+    assert rows["across"].endswith("3 deg")

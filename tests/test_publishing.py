@@ -232,6 +232,38 @@ def test_operator_status_shows_the_summaries_rate_window() -> None:
     assert monitor.status().rate_kg_h == pytest.approx(7.0 * 3.6)
 
 
+def test_a_rate_of_gas_moving_along_the_line_of_sight_is_flagged_everywhere() -> None:
+    """The window's mean out-of-plane angle and its flag reach the summary (MCAP, export),
+    the operator's panel and the final line of ``ogiflow run``."""
+    from appliance.live.status import status_markdown
+    from appliance.runtime.banner import line_of_sight_words
+    from appliance.runtime.events import EventConfig
+    from appliance.runtime.monitor import LeakMonitor
+    from processing.emission.rate import FrameRate
+
+    rec = FakeRecorder()
+    monitor = LeakMonitor(EventConfig(), (W, H))
+    pub = _publisher(rec, None, monitor=monitor)
+    for i, angle in enumerate((20.0, 40.0)):
+        res = _result(i)
+        res.rate = FrameRate(2.0, (2.0,), "", out_of_plane_deg=angle)
+        pub.publish(res)
+    last = json.loads(rec.topic("/sceneflow/summary")[-1].payload)
+    assert last["emission_window_out_of_plane_deg"] == pytest.approx(30.0)
+    assert last["emission_window_flags"] == []
+    assert line_of_sight_words(pub.rate_window.estimate()) == ""
+    for i in range(2, 8):
+        res = _result(i)
+        res.rate = FrameRate(2.0, (2.0,), "", out_of_plane_deg=80.0)
+        pub.publish(res)
+    last = json.loads(rec.topic("/sceneflow/summary")[-1].payload)
+    assert last["emission_window_out_of_plane_deg"] == pytest.approx((20 + 40 + 6 * 80) / 8)
+    assert last["emission_window_flags"] == ["line_of_sight"]
+    assert "line_of_sight" in monitor.status().rate_flags
+    assert "line of sight" in status_markdown(monitor.status())
+    assert "FLAGGED line_of_sight" in line_of_sight_words(pub.rate_window.estimate())
+
+
 class _Flag:
     """Stands in for the pool's shared ``fields_wanted`` value."""
 

@@ -44,6 +44,7 @@ from processing.chain import (
 )
 from processing.emission import METHANE, RateWindow
 from processing.emission.estimator import CurtainRates, EmissionEstimator, EmissionSettings
+from processing.emission.rate import LINE_OF_SIGHT_DEG
 from processing.emission.truth import true_curtain_flux
 from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
 from processing.synthetic.storage import META_NAME
@@ -225,6 +226,8 @@ def _record(meta: dict[str, Any], series: dict[str, list[float | None]], window:
         "true_flux_g_s": truth,
         "stereo_g_s": stereo,
         "stereo_uncertainty_g_s": est.uncertainty_g_s,
+        "out_of_plane_deg": est.out_of_plane_deg,
+        "flags": list(est.flags),
         "single_camera_g_s": single,
         "stereo_error": _rel(stereo, truth),
         "single_camera_error": _rel(single, truth),
@@ -265,8 +268,9 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
         return "n/a" if v is None else f"{100 * v:+.1f}"
 
     lines = [f"{'sequence':<22} {'release':>8} {'true flux':>9} {'stereo':>14} {'err/%':>6} "
-             f"{'single':>7} {'err/%':>6} {'wind (X,Y,Z) m/s':>18} {'Z/m':>5} {'frames':>7}",
-             "-" * 112]
+             f"{'single':>7} {'err/%':>6} {'wind (X,Y,Z) m/s':>18} {'Z/m':>5} {'frames':>7} "
+             f"{'out of plane':>12}",
+             "-" * 125]
     for name, r in results.items():
         st = ("n/a" if r["stereo_g_s"] is None else
               f"{r['stereo_g_s']:.2f}+-{f(r['stereo_uncertainty_g_s'])}")
@@ -275,13 +279,19 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
         lines.append(f"{(name + fx):<22} {f(r['true_release_g_s']):>8} {f(r['true_flux_g_s']):>9} "
                      f"{st:>14} {pct(r['stereo_error']):>6} {f(r['single_camera_g_s']):>7} "
                      f"{pct(r['single_camera_error']):>6} {wind:>18} {r['distance_m']:>5.1f} "
-                     f"{r['frames_defined']:>3}/{r['frames_total']:<3}")
+                     f"{r['frames_defined']:>3}/{r['frames_total']:<3} "
+                     f"{f(r.get('out_of_plane_deg'), '.0f'):>5} deg{_flag_mark(r)}")
     acc = acceptance(results)
     lines.append(f"|stereo error|: worst {pct(acc['worst_error'])} %, median "
                  f"{pct(acc['median_error'])} % (targets 20 / 10 %); stereo closer than "
                  f"single camera with out-of-plane wind: {acc['stereo_beats_single_out_of_plane']}"
-                 "; * = camera non-idealities")
+                 "; * = camera non-idealities; LOS = rate flagged line_of_sight (the gas's "
+                 f"motion more than {LINE_OF_SIGHT_DEG:.0f} deg out of the image plane)")
     return "\n".join(lines)
+
+
+def _flag_mark(record: dict[str, Any]) -> str:
+    return " LOS" if "line_of_sight" in record.get("flags", ()) else ""
 
 
 def public(results: dict[str, dict[str, Any]]) -> dict[str, Any]:

@@ -29,6 +29,8 @@ class OperatorStatus:
         The ongoing leak event (``LeakEvent.to_dict()``), None when there is none.
     rate_kg_h, rate_uncertainty_kg_h : float or None
         Windowed emission rate and its uncertainty.
+    rate_flags : tuple of str
+        Qualifiers of that rate (``line_of_sight``).
     true_rate_kg_h : float or None
         Simulated runs: the simulator's release rate.
     wind_m_s : (float, float, float) or None
@@ -47,6 +49,7 @@ class OperatorStatus:
     leak: Mapping[str, Any] | None = None
     rate_kg_h: float | None = None
     rate_uncertainty_kg_h: float | None = None
+    rate_flags: tuple[str, ...] = ()
     true_rate_kg_h: float | None = None
     wind_m_s: tuple[float, float, float] | None = None
     health: list[str] = field(default_factory=list)
@@ -134,6 +137,8 @@ def status_markdown(s: OperatorStatus) -> str:
         unc = (f" +- {s.rate_uncertainty_kg_h:.2f}" if s.rate_uncertainty_kg_h is not None
                else "")
         lines.append(f"**Emission rate: {s.rate_kg_h:.2f}{unc} kg/h**")
+        if "line_of_sight" in s.rate_flags:
+            lines.append("(weak: the gas moves mostly along the line of sight)")
     elif s.leak is not None:
         lines.append("Emission rate: not measurable now (see flags)")
     if s.true_rate_kg_h is not None:

@@ -155,6 +155,12 @@ SCENEFLOW_SUMMARY = _json_schema(
         "emission_window_s": {**_NUM, "minimum": 0, "description": "window length, s"},
         "emission_window_frames": {**_INT, "minimum": 0,
                                    "description": "frames with a rate in the window"},
+        "emission_window_out_of_plane_deg": {**_NUM_OR_NULL, "minimum": 0, "maximum": 90,
+                                             "description": "mean angle of the gas's motion "
+                                             "out of the image plane over the window, deg"},
+        "emission_window_flags": {"type": "array", "items": {"type": "string"},
+                                  "description": "qualifiers of the window rate, e.g. "
+                                  "line_of_sight (motion mostly along the view: rate weak)"},
         "emission_true_rate_g_s": {**_NUM_OR_NULL, "description": "simulated runs: the "
                                    "simulator's true release rate at this frame, g/s"},
     },

@@ -48,7 +48,8 @@ def summary_row(m: Mapping[str, Any]) -> dict[str, Any]:
     }
     for key, value in m.items():
         if key.startswith(PASS_THROUGH_PREFIX):
-            row[key] = value
+            # lists of words (the rate's flags) as one string, like ``flags``
+            row[key] = ";".join(value) if isinstance(value, list) else value
     return row
 
 

@@ -6,6 +6,8 @@ import sys
 import time
 from typing import Any
 
+from processing.emission import RateEstimate
+
 
 def announce_start(app: Any) -> None:
     """Where the live view and the recording are, and how to stop."""
@@ -52,7 +54,7 @@ def announce_end(app: Any) -> None:
         sys.stderr.write(
             f"ogiflow: emission rate (last {est.window_s:.0f} s, {est.frames} of "
             f"{est.frames_total} frames with a rate): {est.rate_g_s:.2f}{unc} g/s = "
-            f"{est.rate_kg_h:.3f} kg/h\n")
+            f"{est.rate_kg_h:.3f} kg/h{line_of_sight_words(est)}\n")
     elif app.publisher.published:
         sys.stderr.write("ogiflow: emission rate: undefined (no frame with a rate in the "
                          "last window)\n")
@@ -62,6 +64,14 @@ def announce_end(app: Any) -> None:
             f"ogiflow: simulated release rate {true:.2f} g/s ({true * 3.6:.3f} kg/h), "
             f"measured {measured:.2f} g/s ({measured * 3.6:.3f} kg/h), error "
             f"{'n/a' if err is None else f'{100 * err:+.1f} %'}\n")
+
+
+def line_of_sight_words(est: RateEstimate) -> str:
+    """``"; FLAGGED line_of_sight: ..."`` when the window's rate carries that flag."""
+    if "line_of_sight" not in est.flags or est.out_of_plane_deg is None:
+        return ""
+    return (f"; FLAGGED line_of_sight: the gas moves {est.out_of_plane_deg:.0f} deg out of the "
+            "image plane, where image-based rates read high (README, Emission rate)")
 
 
 def _fmt(v: Any) -> str:

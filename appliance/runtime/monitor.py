@@ -148,6 +148,7 @@ class LeakMonitor:
                 rate_kg_h=None if r is None or r.rate_kg_h is None else r.rate_kg_h,
                 rate_uncertainty_kg_h=(None if r is None or r.uncertainty_g_s is None
                                        else r.uncertainty_g_s * 3.6),
+                rate_flags=() if r is None else r.flags,
                 true_rate_kg_h=(None if self.true_rate_g_s is None
                                 else self.true_rate_g_s * 3.6),
                 wind_m_s=self.wind, health=list(self._health), events=events,

@@ -172,6 +172,8 @@ class ResultPublisher:
             "emission_window_uncertainty_g_s": est.uncertainty_g_s,
             "emission_window_s": est.window_s,
             "emission_window_frames": est.frames,
+            "emission_window_out_of_plane_deg": est.out_of_plane_deg,
+            "emission_window_flags": list(est.flags),
         }
         if true is not None:
             out["emission_true_rate_g_s"] = true

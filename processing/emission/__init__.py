@@ -18,6 +18,7 @@ from processing.emission.rate import (
     RateEstimate,
     RateWindow,
     frame_rate,
+    out_of_plane_deg,
     single_camera_rate,
 )
 
@@ -38,6 +39,7 @@ __all__ = [
     "fit_alpha",
     "frame_rate",
     "g_s_to_kg_h",
+    "out_of_plane_deg",
     "place_curtains",
     "ppm_m_to_kg_m2",
     "single_camera_rate",

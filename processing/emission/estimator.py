@@ -10,6 +10,7 @@ when a typed-in distance is given, the single-camera QOGI rate through the same 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -26,7 +27,7 @@ from processing.emission.column import BackgroundModel, column_density
 from processing.emission.curtains import Curtain, curtain_flux
 from processing.emission.gas import METHANE, STANDARD_PRESSURE_PA, GasProperties, ppm_m_to_kg_m2
 from processing.emission.placement import Placement, place_curtains
-from processing.emission.rate import FrameRate, single_camera_velocity
+from processing.emission.rate import FrameRate, out_of_plane_deg, single_camera_velocity
 
 #: Gas temperature when neither the configuration nor an anemometer gives one (15 degC).
 DEFAULT_GAS_TEMPERATURE_K = 288.15
@@ -91,16 +92,20 @@ class CurtainRates:
     stereo_g_s, single_g_s : tuple of float
         Their stereo and single-camera rates, g/s (``single_g_s`` empty without a typed-in
         distance).
+    out_of_plane_deg : float or None
+        The gas's motion out of the image plane (:func:`processing.emission.rate.out_of_plane_deg`).
     """
 
     placement: Placement
     curtains: tuple[Curtain, ...]
     stereo_g_s: tuple[float, ...]
     single_g_s: tuple[float, ...]
+    out_of_plane_deg: float | None = None
 
     def stereo(self) -> FrameRate:
         """The stereo :class:`FrameRate` (mean over the curtains; None when there are none)."""
-        return _frame_rate(self.stereo_g_s, self.placement)
+        rate = _frame_rate(self.stereo_g_s, self.placement)
+        return dataclasses.replace(rate, out_of_plane_deg=self.out_of_plane_deg)
 
     def single(self) -> FrameRate:
         """The single-camera :class:`FrameRate`."""
@@ -200,7 +205,9 @@ class EmissionEstimator:
                 g = curtain_flux(c, sigma_kg_m2, single_v, z_single, flow_ok, gas_mask,
                                  principal_point=pp, camera_constant=s, column_mask=faint)
                 sc.append(g.rate_kg_s * 1e3)
-        return CurtainRates(placement, tuple(curtains), tuple(st), tuple(sc))
+        angle = (out_of_plane_deg(sigma_kg_m2, velocity, valid, gas_mask, principal_point=pp,
+                                  camera_constant=s) if curtains else None)
+        return CurtainRates(placement, tuple(curtains), tuple(st), tuple(sc), angle)
 
     def frame_rate(self, counts: np.ndarray, *, flow: np.ndarray, velocity: np.ndarray,
                    depth: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray, dt_s: float,
