@@ -40,15 +40,16 @@ from processing.coherence import smooth_disparity_change
 from processing.depth_gate import apply_gate, out_of_band_motion
 from processing.disparity import joint_disparity
 from processing.disturbances import preprocess_flags
-from processing.normalisation import DiffScaleTracker
+from processing.normalisation import DiffScaleTracker, pooled_quantile
 from processing.optical_flow import brox_optical_flow
 from processing.pixelwise import velocity_and_quality
 from processing.preprocess import (
-    PreprocessedTriple,
     apply_rectification,
     differential_image,
     preprocess_stereo,
     radiometric_correction,
+    rescale_differences,
+    scale_samples,
 )
 from processing.quality import c_usf
 from processing.segmentation import segment_gas
@@ -157,7 +158,9 @@ def gas_radiance(params: ChainParameters,
 
 def initial_scale(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
                   geometry: StereoGeometry, params: ChainParameters | None = None) -> float:
-    """A first normalisation scale: 0.999 quantile of |D(t0)| over both cameras."""
+    """A provisional first normalisation scale: 0.999 quantile of |D(t0)| over both
+    cameras, before registration (the chain takes it again from the registered, gated
+    differences when that is smaller)."""
     lg, floor = gas_radiance(params or ChainParameters(), geometry)
     diffs = []
     for frames, curve in ((left, geometry.curve_left), (right, geometry.curve_right)):
@@ -230,8 +233,8 @@ def compute_scene_flow(
         timings[name] = (now - t) * 1e3
         return now
 
-    # Whether the scale comes from this triple's own differences (the depth gate then
-    # takes it again without the pixels it removes) or is set / tracked.
+    # Whether the scale is a first one from this triple's own differences (provisional:
+    # taken again after registration and the depth gate, below) or is set / tracked.
     own_scale = False
     if params.diff_scale is not None:
         scale = params.diff_scale
@@ -273,12 +276,24 @@ def compute_scene_flow(
                                   dilate_px=params.max_motion_px)
         if gate.fraction > 0:
             flags.append("object_motion_rejected")
-            pl, pr, scale = apply_gate(pl, pr, gate, scale, renormalise=own_scale)
+            pl, pr = apply_gate(pl, pr, gate)
             blanked = (gate.left, gate.right)
         t = lap("depth_gate", t)
     flags.extend(preprocess_flags(pl, pr))
     # The scale this triple asks for: once, for the scene-change test and the tracker.
-    target = (state.scale.target(pl.raw0, pl.raw1, pr.raw0, pr.raw1)
+    # Without the registration's border strips: on a textured background their mirrored
+    # values differ by far more than any gas (processing.normalisation's quantile).
+    measured = scale_samples(pl, pr)
+    if own_scale:
+        # A first scale (no tracked one yet) came from the unregistered first pair, with a
+        # textured background's jitter and any warm object in it (measured: 2.1x the gas's
+        # own under 0.3 px jitter, 15x with the object). Taken again from what the solvers
+        # see: registered, gated, without the border strips.
+        q = pooled_quantile(measured)
+        if 0 < q < scale:
+            pl, pr = rescale_differences(pl, scale / q), rescale_differences(pr, scale / q)
+            scale = q
+    target = (state.scale.target(*measured)
               if state is not None and state.scale is not None else None)
     cut = scene_change(state, target)
     if cut:
@@ -348,7 +363,7 @@ def compute_scene_flow(
     timings["total"] = (time.perf_counter() - t_start) * 1e3
 
     if state is not None:
-        _update_state(state, params, scale, pl, pr, target)
+        _update_state(state, params, scale, measured, target)
         if cut:
             state.reset()  # the next triple starts cold too: these fields are not gas
         else:
@@ -396,9 +411,8 @@ def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | 
 
 
 def _update_state(state: ChainState, params: ChainParameters, scale: float,
-                  pl: PreprocessedTriple, pr: PreprocessedTriple,
-                  target: float | None) -> None:
+                  measured: Sequence[np.ndarray], target: float | None) -> None:
     if params.diff_scale is None:
         if state.scale is None:
             state.scale = DiffScaleTracker(scale, forgetting=params.scale_forgetting)
-        state.scale.update(pl.raw0, pl.raw1, pr.raw0, pr.raw1, target=target)
+        state.scale.update(*measured, target=target)

@@ -236,45 +236,24 @@ def suppress(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate,
-               scale: float, renormalise: bool = True
-               ) -> tuple[PreprocessedTriple, PreprocessedTriple, float]:
-    """Remove the gate's pixels from both views of a triple (and renormalise without them).
+def apply_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, gate: DepthGate
+               ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
+    """Remove the gate's pixels from both views of a triple: "no change" in the normalised
+    differences, 0 in the raw ones (so that no normalisation quantile sees them).
 
-    A warm object has far more contrast than the gas and sets the normalisation scale
-    (0.999 quantile of |D|); left in, it would squeeze the gas into a few grey levels
-    around 0.5 where the flow sees no signal. So the raw differences handed to the scale
-    tracker lose the removed pixels, and a scale taken from this very triple
-    (``renormalise``: the first triple of a stream, whose scale came from its own
-    quantile) is taken again without them: the triple is rescaled to the quantile of the
-    remaining pixels (the map to [0, 1] is affine, so rescaling the normalised images
-    equals normalising anew).
-
-    A tracked scale (``renormalise`` False) already comes from gated triples and is kept:
-    re-taken from one triple's remaining pixels, it jumped whenever the gate fired - also
-    for a few spurious pixels at a faint plume tip - and the changed contrast moved d'
-    (measured on a field scene: V_Z 0.61 -> 0.44 m/s for 0.91 true over the four triples
-    after such a jump; with a moving object, RMVE 23.2 -> 20.2 %, AEMV 22.1 -> 18.8 deg
-    when the tracked scale is kept).
+    A warm object has far more contrast than the gas; left in the raw differences, it
+    would set the normalisation scale (0.999 quantile of |D|) and squeeze the gas into a
+    few grey levels around 0.5 where the flow sees no signal. The chain takes a triple's
+    own first scale again from the gated differences
+    (:func:`processing.chain.compute_scene_flow`); a tracked scale is fed only gated ones.
     """
-    raws = [np.where(gate.left, np.float32(0), pl.raw0), np.where(gate.left, np.float32(0),
-            pl.raw1), np.where(gate.right, np.float32(0), pr.raw0),
-            np.where(gate.right, np.float32(0), pr.raw1)]
-    new_scale = scale
-    if renormalise:
-        q = float(np.quantile(np.abs(np.concatenate([r[::2, ::2].ravel() for r in raws])),
-                              0.999))
-        new_scale = q if 0 < q < scale else scale
-    factor = np.float32(scale / new_scale)
+    def raw(a: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return np.where(mask, np.float32(0), a)
 
-    def clean(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        out = suppress(diff, mask)
-        if factor != 1:
-            out = np.clip((out - np.float32(0.5)) * factor + np.float32(0.5), 0.0, 1.0)
-        return out.astype(np.float32, copy=False)
-
-    pl = dataclasses.replace(pl, diff0=clean(pl.diff0, gate.left),
-                             diff1=clean(pl.diff1, gate.left), raw0=raws[0], raw1=raws[1])
-    pr = dataclasses.replace(pr, diff0=clean(pr.diff0, gate.right),
-                             diff1=clean(pr.diff1, gate.right), raw0=raws[2], raw1=raws[3])
-    return pl, pr, new_scale
+    pl = dataclasses.replace(pl, diff0=suppress(pl.diff0, gate.left),
+                             diff1=suppress(pl.diff1, gate.left),
+                             raw0=raw(pl.raw0, gate.left), raw1=raw(pl.raw1, gate.left))
+    pr = dataclasses.replace(pr, diff0=suppress(pr.diff0, gate.right),
+                             diff1=suppress(pr.diff1, gate.right),
+                             raw0=raw(pr.raw0, gate.right), raw1=raw(pr.raw1, gate.right))
+    return pl, pr

@@ -16,6 +16,8 @@ exponential forgetting, pooled over both cameras, whose value is held fixed with
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from processing.validation import as_float_image, check_positive
@@ -43,6 +45,17 @@ def normalise_difference(diff: np.ndarray, scale: float) -> np.ndarray:
     out += np.float32(0.5)
     np.clip(out, 0.0, 1.0, out=out)
     return out
+
+
+def pooled_quantile(diffs: Sequence[np.ndarray], quantile: float = 0.999) -> float:
+    """``quantile`` of |D| pooled over raw differential images (every 2nd pixel in each
+    direction: plenty for a quantile and 4x cheaper), radiance units."""
+    if not diffs:
+        raise ValueError("need at least one differential image")
+    pooled = np.concatenate(
+        [np.abs(as_float_image(d, "diff")[::2, ::2]).ravel() for d in diffs]
+    )
+    return float(np.quantile(pooled, quantile))
 
 
 class DiffScaleTracker:
@@ -91,13 +104,7 @@ class DiffScaleTracker:
 
     def target(self, *diffs: np.ndarray) -> float:
         """The scale these raw differential images alone would ask for (radiance units)."""
-        if not diffs:
-            raise ValueError("update needs at least one differential image")
-        # Every 2nd pixel in each direction is plenty for a quantile and 4x cheaper.
-        pooled = np.concatenate(
-            [np.abs(as_float_image(d, "diff")[::2, ::2]).ravel() for d in diffs]
-        )
-        return self.headroom * float(np.quantile(pooled, self.quantile))
+        return self.headroom * pooled_quantile(diffs, self.quantile)
 
     def update(self, *diffs: np.ndarray, target: float | None = None) -> float:
         """Pool the raw differential images of both cameras and update the scale

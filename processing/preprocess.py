@@ -32,6 +32,7 @@ Why one shared, slowly varying scale: see :mod:`processing.normalisation`.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -41,7 +42,7 @@ import numpy as np
 from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
 from processing.denoise import sobolev_denoise
 from processing.normalisation import normalise_difference
-from processing.registration import estimate_shift_checked, warp_translation
+from processing.registration import estimate_shift_checked, warp_border_px, warp_translation
 from processing.validation import as_float_image, check_positive, check_same_shape
 
 
@@ -183,6 +184,14 @@ class PreprocessedTriple:
     rejected_shifts: int = 0
     rejected: tuple[bool, bool] = (False, False)
 
+    @property
+    def border_px(self) -> int:
+        """Width of the border strip of ``raw0``/``raw1`` (and the diffs) that the
+        registration's warps filled with mirrored values rather than measurements, px
+        (:func:`processing.registration.warp_border_px` of t1's and t2's shifts)."""
+        s01, s12 = self.shifts
+        return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
+
 
 def preprocess_camera(
     frames: Sequence[np.ndarray],
@@ -276,6 +285,31 @@ def preprocess_camera(
     diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
     return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), sum(rejected),
                               (rejected[0], rejected[1]))
+
+
+def rescale_differences(triple: PreprocessedTriple, factor: float) -> PreprocessedTriple:
+    """``triple`` normalised with its scale divided by ``factor``.
+
+    The map to [0, 1] is affine (0.5 + D / 2s), so 0.5 + (diff - 0.5) factor, clipped,
+    equals normalising anew - exactly for factor >= 1 (a smaller scale), up to the values
+    the old scale had clipped otherwise. The raw differences stay as they are.
+    """
+    f = np.float32(factor)
+
+    def one(diff: np.ndarray) -> np.ndarray:
+        return np.clip((diff - np.float32(0.5)) * f + np.float32(0.5), 0.0, 1.0).astype(
+            np.float32, copy=False)
+
+    return dataclasses.replace(triple, diff0=one(triple.diff0), diff1=one(triple.diff1))
+
+
+def scale_samples(pl: PreprocessedTriple, pr: PreprocessedTriple) -> list[np.ndarray]:
+    """The four raw differential images of a triple without the border strip the
+    registration's warps filled with mirrored values (:attr:`PreprocessedTriple.border_px`,
+    the wider of the two cameras'): what a normalisation quantile may look at."""
+    b = max(pl.border_px, pr.border_px)
+    raws = (pl.raw0, pl.raw1, pr.raw0, pr.raw1)
+    return [r[b:-b, b:-b] for r in raws] if b else list(raws)
 
 
 def preprocess_stereo(

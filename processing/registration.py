@@ -101,6 +101,14 @@ def warp_translation(image: np.ndarray, shift: tuple[float, float]) -> np.ndarra
     return out
 
 
+def warp_border_px(*shifts: tuple[float, float]) -> int:
+    """Width of the border strip that :func:`warp_translation` fills with mirrored values
+    for the largest of ``shifts`` (0 when none moves the frame), px: ceil(|shift|) plus
+    the bicubic kernel's reach of 2 px."""
+    largest = max((max(abs(float(s[0])), abs(float(s[1]))) for s in shifts), default=0.0)
+    return 0 if largest == 0.0 else int(np.ceil(largest)) + 2
+
+
 @numba.njit(cache=True, fastmath=True)
 def _gauss_newton_sums(
     resid: np.ndarray, gx: np.ndarray, gy: np.ndarray, border: int, c: float

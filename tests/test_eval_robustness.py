@@ -53,6 +53,15 @@ def test_unknown_condition_and_matrix_are_refused(tmp_path: Path) -> None:
     assert cli.main(["eval", "robustness", "--matrix", "nope"]) == cli.EXIT_USAGE
 
 
+def test_holdout_matrix_is_the_acceptance_set_on_unseen_seeds() -> None:
+    holdout, default = rb.MATRICES["holdout"], rb.DEFAULT_MATRIX
+    assert {s.seed for s in holdout.scenes}.isdisjoint({s.seed for s in default.scenes})
+    assert {s.wind_m_s for s in holdout.scenes} == {s.wind_m_s for s in default.scenes}
+    assert [c.name for c in holdout.conditions] == [c.name for c in default.conditions
+                                                    if c.realistic]
+    assert len(holdout.scenes) == 8 and holdout.n_frames == default.n_frames
+
+
 def test_simulator_calibration_inverts_the_cameras_counts() -> None:
     cfg = rb.scene_config(TINY.scenes[0], TINY)
     cfg = cfg.__class__(**{**cfg.__dict__, "options": RenderOptions(gain_mismatch=0.06)})

@@ -32,8 +32,10 @@ def register(root: argparse._SubParsersAction) -> None:
         epilog="example: ogiflow eval robustness --json robustness.json",
     )
     p.add_argument("--matrix", default="default",
-                   help="named matrix: default (21 conditions x 4 scenes x 14 frames, "
-                        "about 10-20 min on 2 cores) or quick (3 conditions, 1 scene)")
+                   help="named matrix: default (24 conditions x 4 scenes x 14 frames, "
+                        "about 10-20 min on 2 cores), quick (3 conditions, 1 scene) or "
+                        "holdout (the 11 realistic conditions on 8 scenes of 4 other "
+                        "seeds)")
     p.add_argument("--condition", action="append", metavar="NAME",
                    help="evaluate only this condition of the matrix (repeatable)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
