@@ -94,7 +94,7 @@ def single_camera_rate(placement: Placement, sigma_kg_m2: np.ndarray, flow: np.n
 #: flagged ``line_of_sight``: there the image sees less than 57 % of the speed, and the
 #: rate's error grew with the angle. Measured with ``ogiflow eval emission`` (README,
 #: "Emission rate"), the angle as this module measures it: 62 deg read +24 %, 40-46 deg
-#: +11 %, 1-16 deg -9 to +6 %; the flag sits between the last within the acceptance and
+#: +11 %, 1-15 deg -9 to +6 %; the flag sits between the last within the acceptance and
 #: the first beyond it.
 LINE_OF_SIGHT_DEG = 55.0
 
