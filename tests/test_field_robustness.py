@@ -17,16 +17,16 @@ from processing.chain import (
 )
 from processing.preprocess import PreprocessedTriple, scale_samples
 from processing.registration import estimate_shift_checked
+from processing.synthetic.cameras import pixel_mean_background
 from processing.synthetic.imaging import (
     Background,
     CountsModel,
     MovingObject,
     Radiometry,
-    background_radiance,
     band_radiance_derivative,
     to_counts,
 )
-from processing.synthetic.render import StereoCamera, ray_directions
+from processing.synthetic.render import StereoCamera
 
 CAM = StereoCamera(b_m=0.3)  # 320 x 240, s = 780 px: the appliance's field geometry
 #: Half that resolution (s = 390 px) keeps the chain runs of the object tests short.
@@ -41,13 +41,7 @@ def _frame(camera_x_m: float, t_s: float, obj: MovingObject | None, rng: np.rand
            samples: int = 1) -> np.ndarray:
     """Counts of the plant wall (and ``obj``) with NETD noise; ``samples`` x ``samples`` rays
     per pixel (a detector's area: one ray aliases the wall's sharp edges)."""
-    img = np.zeros((cam.height, cam.width))
-    for i in range(samples):
-        for j in range(samples):
-            sub = (shift[0] + (i + 0.5) / samples - 0.5, shift[1] + (j + 0.5) / samples - 0.5)
-            img += background_radiance(cam, RAD, ray_directions(cam, sub), camera_x_m, t_s,
-                                       obj, PLANT)
-    img /= samples * samples
+    img = pixel_mean_background(cam, RAD, shift, camera_x_m, t_s, obj, PLANT, samples)
     img = img + rng.normal(0.0, band_radiance_derivative(RAD.t_bg_k) * NETD_K, img.shape)
     return to_counts(img, CountsModel())
 

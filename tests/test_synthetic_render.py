@@ -306,7 +306,7 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
     import cv2
 
     from processing.registration import warp_translation
-    from processing.synthetic.cameras import PIXEL_SAMPLES, StereoRenderer
+    from processing.synthetic.cameras import PIXEL_SAMPLES, StereoRenderer, pixel_mean_background
     from processing.synthetic.imaging import background_radiance
     from processing.synthetic.presets import preset_no_release
 
@@ -326,9 +326,10 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
         low = cv2.GaussianBlur((back - still).astype(np.float32), (0, 0), 2.0)
         return float(np.sqrt(np.mean(low[12:-12, 12:-12] ** 2)))
 
-    ren.config = replace(cfg, options=replace(cfg.options, moving_object=None))
-    n = PIXEL_SAMPLES
-    area = residual(ren._pixel_mean((0.0, 0.0), 0.0, 0.0, n),
-                    ren._pixel_mean(shift, 0.0, 0.0, n))
+    def area_mean(s: tuple[float, float]) -> np.ndarray:
+        return pixel_mean_background(cam, rad, s, 0.0, 0.0, None, cfg.background,
+                                     PIXEL_SAMPLES)
+
+    area = residual(area_mean((0.0, 0.0)), area_mean(shift))
     single = residual(point((0.0, 0.0)), point(shift))
     assert area < 0.6 * single, (area, single)

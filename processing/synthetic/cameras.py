@@ -32,14 +32,17 @@ import numpy as np
 
 from processing.synthetic.config import SequenceConfig
 from processing.synthetic.imaging import (
+    Background,
     CountsModel,
+    MovingObject,
+    Radiometry,
     background_radiance,
     band_radiance_derivative,
     radiance_image,
     shift_image,
     to_counts,
 )
-from processing.synthetic.render import GroundTruth, ray_directions
+from processing.synthetic.render import GroundTruth, StereoCamera, ray_directions
 from processing.synthetic.storage import SyntheticFrame
 
 #: Rays per pixel side for a textured background (module docstring).
@@ -66,6 +69,24 @@ class GasFrame:
     column_left: np.ndarray
     column_right: np.ndarray
     truth: GroundTruth
+
+
+def pixel_mean_background(camera: StereoCamera, radiometry: Radiometry,
+                          shift: tuple[float, float], camera_x_m: float, t_s: float,
+                          moving_object: MovingObject | None, background: Background | None,
+                          n: int, centre_dirs: np.ndarray | None = None) -> np.ndarray:
+    """Background radiance averaged over ``n`` x ``n`` rays spread over each pixel of a
+    detector shifted by ``shift`` px (module docstring), (H, W) W m^-2 sr^-1; n = 1: the
+    centre ray. ``centre_dirs``: the unshifted detector's ray directions, if at hand."""
+    total = np.zeros((camera.height, camera.width))
+    for i in range(n):
+        for j in range(n):
+            sub = (shift[0] + (i + 0.5) / n - 0.5, shift[1] + (j + 0.5) / n - 0.5)
+            dirs = (centre_dirs if sub == (0.0, 0.0) and centre_dirs is not None
+                    else ray_directions(camera, sub))
+            total += background_radiance(camera, radiometry, dirs, camera_x_m, t_s,
+                                         moving_object, background)
+    return total / (n * n)
 
 
 class StereoRenderer:
@@ -99,27 +120,14 @@ class StereoRenderer:
             column = shift_image(column_ppm_m, (float(shift[0]), float(shift[1])))
         textured = (opts.moving_object is not None
                     or (cfg.background is not None and cfg.background.kind == "plant"))
-        bg = self._pixel_mean((float(shift[0]), float(shift[1])), camera_x_m, t_s,
-                              PIXEL_SAMPLES if textured else 1)
+        bg = pixel_mean_background(self.camera, rad, (float(shift[0]), float(shift[1])),
+                                   camera_x_m, t_s, opts.moving_object, cfg.background,
+                                   PIXEL_SAMPLES if textured else 1, centre_dirs=self.dirs)
         img = radiance_image(column, bg, rad)
         if opts.noise_netd_k > 0:
             sigma = band_radiance_derivative(rad.t_bg_k, rad.band_um) * opts.noise_netd_k
             img = img + self.rng.normal(0.0, sigma, img.shape)
         return to_counts(img, model), shift
-
-    def _pixel_mean(self, shift: tuple[float, float], camera_x_m: float, t_s: float,
-                    n: int) -> np.ndarray:
-        """Background radiance averaged over ``n`` x ``n`` rays spread over each pixel of a
-        detector shifted by ``shift`` px (module docstring), (H, W); n = 1: the centre ray."""
-        cfg = self.config
-        total = np.zeros((self.camera.height, self.camera.width))
-        for i in range(n):
-            for j in range(n):
-                sub = (shift[0] + (i + 0.5) / n - 0.5, shift[1] + (j + 0.5) / n - 0.5)
-                dirs = self.dirs if sub == (0.0, 0.0) else ray_directions(self.camera, sub)
-                total += background_radiance(self.camera, cfg.radiometry, dirs, camera_x_m,
-                                             t_s, cfg.options.moving_object, cfg.background)
-        return total / (n * n)
 
     def render(self, gas: GasFrame) -> SyntheticFrame:
         """Raw left and right counts of one frame, with the ground truth and the jitter drawn."""
