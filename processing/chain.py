@@ -284,17 +284,19 @@ def compute_scene_flow(
     # Without the registration's border strips: on a textured background their mirrored
     # values differ by far more than any gas (processing.normalisation's quantile).
     measured = scale_samples(pl, pr)
+    target = None
     if own_scale:
         # A first scale (no tracked one yet) came from the unregistered first pair, with a
         # textured background's jitter and any warm object in it (measured: 2.1x the gas's
         # own under 0.3 px jitter, 15x with the object). Taken again from what the solvers
         # see: registered, gated, without the border strips.
-        q = pooled_quantile(measured)
+        # It is also the first target of the tracker that starts from it.
+        q = target = pooled_quantile(measured)
         if 0 < q < scale:
             pl, pr = rescale_differences(pl, scale / q), rescale_differences(pr, scale / q)
             scale = q
-    target = (state.scale.target(*measured)
-              if state is not None and state.scale is not None else None)
+    elif state is not None and state.scale is not None:
+        target = state.scale.target(*measured)
     cut = scene_change(state, target)
     if cut:
         flags.append("scene_change")

@@ -10,7 +10,6 @@ when a typed-in distance is given, the single-camera QOGI rate through the same 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -104,17 +103,17 @@ class CurtainRates:
 
     def stereo(self) -> FrameRate:
         """The stereo :class:`FrameRate` (mean over the curtains; None when there are none)."""
-        rate = _frame_rate(self.stereo_g_s, self.placement)
-        return dataclasses.replace(rate, out_of_plane_deg=self.out_of_plane_deg)
+        return _frame_rate(self.stereo_g_s, self.placement, self.out_of_plane_deg)
 
     def single(self) -> FrameRate:
         """The single-camera :class:`FrameRate`."""
         return _frame_rate(self.single_g_s, self.placement)
 
 
-def _frame_rate(rates: tuple[float, ...], placement: Placement) -> FrameRate:
+def _frame_rate(rates: tuple[float, ...], placement: Placement,
+                out_of_plane: float | None = None) -> FrameRate:
     if rates:
-        return FrameRate(float(np.mean(rates)), rates)
+        return FrameRate(float(np.mean(rates)), rates, "", out_of_plane)
     return FrameRate(None, (), placement.reason or "no valid velocity on the curtains")
 
 
