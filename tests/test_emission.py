@@ -16,14 +16,13 @@ from processing.emission import (
     column_density,
     curtain_flux,
     fit_alpha,
-    frame_rate,
     g_s_to_kg_h,
     out_of_plane_deg,
     place_curtains,
     ppm_m_to_kg_m2,
-    single_camera_rate,
 )
 from processing.emission.column import BackgroundModel, nanmedian_first_axis
+from processing.emission.estimator import CurtainRates, EmissionEstimator, EmissionSettings
 
 S_PX, CX, CY = 780.0, 159.5, 119.5
 H, W = 240, 320
@@ -127,9 +126,10 @@ def test_placement_finds_the_source_and_orients_curtains_downstream() -> None:
     sigma = np.where(gas, 1e-4, 0.0)
     vel = np.zeros((H, W, 3))
     vel[..., 0] = 1.0
-    fr = frame_rate(p, sigma, vel, np.full((H, W), 5.0), np.ones((H, W), bool), gas,
-                    principal_point=(CX, CY), camera_constant=S_PX)
-    assert fr.rate_g_s is not None and all(q > 0 for q in fr.curtain_rates_g_s)
+    for c in p.curtains:
+        f = curtain_flux(c, sigma, vel, np.full((H, W), 5.0), np.ones((H, W), bool), gas,
+                         principal_point=(CX, CY), camera_constant=S_PX)
+        assert f.defined and f.rate_kg_s > 0
 
 
 def test_placement_leaves_out_the_first_fifth_of_the_plume() -> None:
@@ -154,21 +154,26 @@ def test_placement_reports_why_there_are_no_curtains() -> None:
 
 
 def test_single_camera_equals_stereo_for_in_plane_motion_at_the_right_distance() -> None:
+    """The estimator's two rates through the same curtains: equal for in-plane motion at the
+    typed-in distance; a typed-in distance twice the true one reads four times the rate."""
     gas, flow = _plume_mask()
     z, dt = 5.0, 1 / 30
-    p = place_curtains(gas, flow, n_curtains=3)
     sigma = np.where(gas, 1e-4, 0.0)
     vel = np.zeros((H, W, 3))
     vel[..., 0] = flow[..., 0] * z / (S_PX * dt)  # the flow of an in-plane motion at Z
-    stereo = frame_rate(p, sigma, vel, np.full((H, W), z), np.ones((H, W), bool), gas,
-                        principal_point=(CX, CY), camera_constant=S_PX)
-    single = single_camera_rate(p, sigma, flow, gas, distance_m=z, dt_s=dt,
-                                principal_point=(CX, CY), camera_constant=S_PX)
-    assert stereo.rate_g_s is not None and single.rate_g_s is not None
-    assert single.rate_g_s == pytest.approx(stereo.rate_g_s, rel=0.01)
-    wrong = single_camera_rate(p, sigma, flow, gas, distance_m=2 * z, dt_s=dt,
-                               principal_point=(CX, CY), camera_constant=S_PX)
-    assert wrong.rate_g_s == pytest.approx(4 * stereo.rate_g_s, rel=0.01)  # Z enters twice
+
+    def rates(z_typed: float) -> CurtainRates:
+        est = EmissionEstimator(EmissionSettings(typed_distance_m=z_typed), (CX, CY), S_PX,
+                                None)
+        return est.rates(sigma, flow=flow, velocity=vel, depth=np.full((H, W), z),
+                         valid=np.ones((H, W), bool), gas_mask=gas, dt_s=dt)
+
+    right = rates(z)
+    stereo, single = right.stereo().rate_g_s, right.single().rate_g_s
+    assert len(right.curtains) == 5 and stereo is not None and single is not None
+    assert single == pytest.approx(stereo, rel=0.01)
+    assert rates(2 * z).single().rate_g_s == pytest.approx(4 * stereo, rel=0.01)  # Z twice
+    assert rates(2 * z).stereo().rate_g_s == pytest.approx(stereo, rel=1e-12)
 
 
 def test_rate_window_mean_uncertainty_and_eviction() -> None:

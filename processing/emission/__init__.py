@@ -17,9 +17,7 @@ from processing.emission.rate import (
     FrameRate,
     RateEstimate,
     RateWindow,
-    frame_rate,
     out_of_plane_deg,
-    single_camera_rate,
 )
 
 __all__ = [
@@ -37,10 +35,8 @@ __all__ = [
     "column_density",
     "curtain_flux",
     "fit_alpha",
-    "frame_rate",
     "g_s_to_kg_h",
     "out_of_plane_deg",
     "place_curtains",
     "ppm_m_to_kg_m2",
-    "single_camera_rate",
 ]

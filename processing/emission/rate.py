@@ -7,7 +7,8 @@ distance Z_typed, V = (u, v, 0) Z_typed / (s dt), and ds_i = Z_typed / s. It can
 motion along the optical axis nor the perspective of a plume moving towards the camera,
 and any error in Z_typed enters the rate twice (in V and in ds).
 
-A frame's rate is the mean over its defined curtains; the window average
+:class:`processing.emission.estimator.EmissionEstimator` computes both through the same
+curtains. A frame's rate is the mean over its defined curtains; the window average
 (:class:`RateWindow`) is the mean over frames in the last ``window_s`` seconds, with an
 uncertainty from the spread over curtains and over time (see :meth:`RateWindow.estimate`).
 """
@@ -18,9 +19,6 @@ import collections
 from dataclasses import dataclass
 
 import numpy as np
-
-from processing.emission.curtains import curtain_flux
-from processing.emission.placement import Placement
 
 
 @dataclass(frozen=True)
@@ -47,26 +45,6 @@ class FrameRate:
     out_of_plane_deg: float | None = None
 
 
-def frame_rate(placement: Placement, sigma_kg_m2: np.ndarray, velocity_m_s: np.ndarray,
-               depth_m: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray, *,
-               principal_point: tuple[float, float], camera_constant: float) -> FrameRate:
-    """Stereo emission rate of one frame through the curtains of ``placement``.
-
-    Shapes and units as in :func:`processing.emission.curtains.curtain_flux`.
-    """
-    if not placement.curtains:
-        return FrameRate(None, (), placement.reason or "no curtains")
-    rates = []
-    for c in placement.curtains:
-        f = curtain_flux(c, sigma_kg_m2, velocity_m_s, depth_m, valid, gas_mask,
-                         principal_point=principal_point, camera_constant=camera_constant)
-        if f.defined:
-            rates.append(f.rate_kg_s * 1e3)
-    if not rates:
-        return FrameRate(None, (), "no valid velocity on the curtains")
-    return FrameRate(float(np.mean(rates)), tuple(rates))
-
-
 def single_camera_velocity(flow: np.ndarray, distance_m: float, camera_constant: float,
                            dt_s: float) -> np.ndarray:
     """Image-plane velocity at one typed-in distance: (u, v, 0) Z / (s dt), m/s, (H, W, 3)."""
@@ -76,18 +54,6 @@ def single_camera_velocity(flow: np.ndarray, distance_m: float, camera_constant:
     v = np.zeros((*f.shape[:2], 3))
     v[..., :2] = f * (distance_m / (camera_constant * dt_s))
     return v
-
-
-def single_camera_rate(placement: Placement, sigma_kg_m2: np.ndarray, flow: np.ndarray,
-                       gas_mask: np.ndarray, *, distance_m: float, dt_s: float,
-                       principal_point: tuple[float, float],
-                       camera_constant: float) -> FrameRate:
-    """The single-camera QOGI rate of one frame (module docstring), same curtains."""
-    v = single_camera_velocity(flow, distance_m, camera_constant, dt_s)
-    depth = np.full(gas_mask.shape, float(distance_m))
-    valid = np.all(np.isfinite(np.asarray(flow)), axis=-1)
-    return frame_rate(placement, sigma_kg_m2, v, depth, valid, gas_mask,
-                      principal_point=principal_point, camera_constant=camera_constant)
 
 
 #: Mean angle of the gas's motion out of the image plane above which a window's rate is
