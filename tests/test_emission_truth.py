@@ -148,8 +148,10 @@ def test_eval_emission_table_marks_a_line_of_sight_rate() -> None:
                 "camera_effects": False, "frames_defined": 4, "frames_total": 4,
                 "out_of_plane_deg": angle, "flags": flags}
 
+    vanishing = {**rec(40.0, [], 1.2), "vanishes_in_view": True}
     table = format_table({"along_view": rec(62.0, ["line_of_sight"], 1.8),
-                          "across": rec(3.0, [], 0.0)})
-    rows = {line.split()[0]: line for line in table.splitlines()[2:4]}
+                          "across": rec(3.0, [], 0.0), "shallow": vanishing})
+    rows = {line.split()[0]: line for line in table.splitlines()[2:5]}
     assert rows["along_view"].endswith("62 deg LOS")
     assert rows["across"].endswith("3 deg")
+    assert rows["shallow"].startswith("shallow v ") and " v " not in rows["across"]

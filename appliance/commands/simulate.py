@@ -52,6 +52,13 @@ def register(root: argparse._SubParsersAction) -> None:
     p.add_argument("--distance", type=float, metavar="M",
                    help="distance of the plume from the cameras in m (field preset only; "
                         "default 5.5)")
+    p.add_argument("--volume-depth", type=float, metavar="M",
+                   help="depth of the simulated volume along Z in m, field preset only "
+                        "(default 1.44; at most 12): it grows downwind, the source stays. A "
+                        "wind with a Z component otherwise carries the gas out through the "
+                        "volume's far or near face inside the view, where it vanishes in "
+                        "mid-image (simulate says so when it does); e.g. 2.88 for a plume "
+                        "45 deg out of the image plane. Costs time in proportion")
     p.add_argument("--name", metavar="NAME",
                    help="name of the sequence folder (one preset only; default: the preset's)")
     p.add_argument("--necl", type=float, metavar="PPM_M",
@@ -127,8 +134,13 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
             if not 1.0 <= args.distance <= 100.0:
                 raise ValueError(f"--distance must be within 1..100 m, got {args.distance}")
             kwargs["distance_m"] = args.distance
-    elif args.distance is not None:
-        raise ValueError("--distance applies to the field preset only")
+        if args.volume_depth is not None:
+            if not 1.44 <= args.volume_depth <= 12.0:
+                raise ValueError(f"--volume-depth must be within 1.44..12 m, got "
+                                 f"{args.volume_depth}")
+            kwargs["depth_m"] = args.volume_depth
+    elif args.distance is not None or args.volume_depth is not None:
+        raise ValueError("--distance and --volume-depth apply to the field preset only")
     cfg = preset(name, **kwargs)
     if args.name is not None:
         cfg = replace(cfg, name=args.name)
@@ -217,6 +229,7 @@ def run(args: argparse.Namespace) -> int:
         sequence_characteristics,
     )
     from processing.synthetic.storage import META_NAME, write_meta, write_sequence
+    from processing.synthetic.volume_exit import sequence_plume_exit
 
     names = _expand_presets(args.preset)
     if args.name is not None and len(names) != 1:
@@ -259,5 +272,10 @@ def run(args: argparse.Namespace) -> int:
             f"  angles (X, Y, Z) ({ang}) deg  sd|V*| {stats['speed_std_m_s']:.2f} m/s"
             f"  N {stats['n_px']:.0f} px  ({time.perf_counter() - start:.1f} s)"
         )
+        leave = sequence_plume_exit(meta)
+        if leave is not None and leave.in_view and leave.face in ("near", "far"):
+            print(f"{cfg.name}: note: the plume leaves the simulated volume through its "
+                  f"{leave.describe()}: its gas vanishes in mid-image (use --volume-depth "
+                  "for a plume that leaves through the side of the view)")
     print(f"total {time.perf_counter() - total_start:.1f} s for {len(configs)} sequence(s)")
     return 0

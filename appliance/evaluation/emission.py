@@ -48,6 +48,7 @@ from processing.emission.rate import LINE_OF_SIGHT_DEG
 from processing.emission.truth import true_curtain_flux
 from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
 from processing.synthetic.storage import META_NAME
+from processing.synthetic.volume_exit import sequence_plume_exit
 
 Log = Callable[[str], None]
 #: Name of the calibration file ``ogiflow simulate`` writes beside the frames.
@@ -221,6 +222,7 @@ def _record(meta: dict[str, Any], series: dict[str, list[float | None]], window:
     truth, stereo, single = (_mean(series[k]) for k in ("truth", "stereo", "single"))
     wind = [float(w) for w in meta["wind_m_s"]]
     opts = meta["options"]
+    leave = sequence_plume_exit(meta)
     return {
         "true_release_g_s": _mean(series["release"]),
         "true_flux_g_s": truth,
@@ -238,6 +240,9 @@ def _record(meta: dict[str, Any], series: dict[str, list[float | None]], window:
         "distance_m": z_typed,
         "camera_effects": bool(opts.get("noise_netd_k") or opts.get("jitter_px")
                                or opts.get("gain_mismatch") or opts.get("radiometric_mismatch")),
+        "volume_exit": None if leave is None else leave.describe(),
+        "vanishes_in_view": bool(leave is not None and leave.in_view
+                                 and leave.face in ("near", "far")),
         "seconds": seconds,
         "series": series,
     }
@@ -275,7 +280,7 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
         st = ("n/a" if r["stereo_g_s"] is None else
               f"{r['stereo_g_s']:.2f}+-{f(r['stereo_uncertainty_g_s'])}")
         wind = "(" + ", ".join(f"{w:.1f}" for w in r["wind_m_s"]) + ")"
-        fx = " *" if r["camera_effects"] else ""
+        fx = (" *" if r["camera_effects"] else "") + (" v" if r.get("vanishes_in_view") else "")
         lines.append(f"{(name + fx):<22} {f(r['true_release_g_s']):>8} {f(r['true_flux_g_s']):>9} "
                      f"{st:>14} {pct(r['stereo_error']):>6} {f(r['single_camera_g_s']):>7} "
                      f"{pct(r['single_camera_error']):>6} {wind:>18} {r['distance_m']:>5.1f} "
@@ -285,8 +290,11 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
     lines.append(f"|stereo error|: worst {pct(acc['worst_error'])} %, median "
                  f"{pct(acc['median_error'])} % (targets 20 / 10 %); stereo closer than "
                  f"single camera with out-of-plane wind: {acc['stereo_beats_single_out_of_plane']}"
-                 "; * = camera non-idealities; LOS = rate flagged line_of_sight (the gas's "
-                 f"motion more than {LINE_OF_SIGHT_DEG:.0f} deg out of the image plane)")
+                 "; * = camera non-idealities; v = the simulated plume leaves its volume "
+                 "through the near or far face inside the view (its gas vanishes in "
+                 "mid-image: ogiflow simulate --volume-depth); LOS = rate flagged "
+                 f"line_of_sight (the gas's motion more than {LINE_OF_SIGHT_DEG:.0f} deg out of "
+                 "the image plane)")
     return "\n".join(lines)
 
 

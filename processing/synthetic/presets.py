@@ -22,6 +22,7 @@ drifting background (false-alarm measurements).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
@@ -92,6 +93,7 @@ def preset_field(
     release_rate_g_s: float = 3.0,
     seed: int = 7,
     voxel_m: float = 0.03,
+    depth_m: float = 1.44,
     **overrides: Any,
 ) -> SequenceConfig:
     """The appliance's simulated cameras: 30 Hz, plume ~5.5 m away, wind from the anemometer.
@@ -102,21 +104,38 @@ def preset_field(
     5.5 m one pixel is ~7 mm, so a wind of 1-3 m/s moves the gas ~5-14 px per frame.
     ``voxel_m`` trades detail for speed while keeping the same physical volume (0.06 m: 8x
     fewer cells, for live simulated cameras on a slow machine).
+
+    That holds for X and Y. A wind with a Z component carries the gas through the volume's
+    far (or near) face, and the view widens with depth, so with 1.44 m the plume vanishes in
+    mid-image (:mod:`processing.synthetic.volume_exit`). ``depth_m`` (m, 1.44-12) grows the
+    volume downwind along Z (both ways without a Z wind) with the source where it was, and
+    the spin-up by the time the wind takes to cross the added depth (at most 8 s more); the
+    cost grows with the cells. 2.88 m lets a plume 45 deg out of the image plane leave
+    through the side of the view at 5.5 m.
     """
     cam = StereoCamera(b_m=b_m)
     if not 0.005 <= voxel_m <= 0.2:
         raise ValueError(f"voxel_m must be within 0.005..0.2 m, got {voxel_m}")
-    ext = np.array([2.88, 1.92, 1.44])
+    if not 1.44 <= depth_m <= 12.0:
+        raise ValueError(f"depth_m must be within 1.44..12 m, got {depth_m}")
     h = float(voxel_m)
-    nx, ny, nz = (max(8, round(e / h)) for e in ext)
+    nx, ny, nz0 = (max(8, round(e / h)) for e in (2.88, 1.92, 1.44))
+    nz = max(nz0, round(depth_m / h))
+    ext0 = np.array([nx, ny, nz0]) * h  # the volume the source's place is defined in
     ext = np.array([nx, ny, nz]) * h
-    centre = np.array([b_m / 2.0, 0.0, distance_m])
-    origin = tuple(float(v) for v in centre - ext / 2.0)
     w = np.asarray(wind_m_s, dtype=float)
     horiz = np.array([w[0], 0.0, w[2]])
     norm = float(np.linalg.norm(horiz))
     upstream = -horiz / norm if norm > 1e-6 else np.zeros(3)
-    pos = ext / 2.0 + 0.25 * ext * upstream
+    pos = ext0 / 2.0 + 0.25 * ext0 * upstream
+    # A deeper volume grows downwind along Z only (both ways without a Z wind): the gas then
+    # leaves through the sides of the views instead of vanishing through the far (or near)
+    # face inside them, which no real plume does. The source keeps its place.
+    extra = (nz - nz0) * h
+    grow_near = extra if w[2] < 0 else (0.0 if w[2] > 0 else extra / 2.0)
+    pos[2] += grow_near
+    origin = tuple(float(v) for v in (np.array([b_m / 2.0, 0.0, distance_m]) - ext0 / 2.0
+                                      - np.array([0.0, 0.0, grow_near])))
     pos[1] = ext[1] - 0.45  # ~0.5 m below the optical axis, inside the view
     src = GasSource(position_m=tuple(float(v) for v in pos), radius_m=max(0.045, 0.75 * h),
                     release_rate_g_s=release_rate_g_s, exit_velocity_m_s=(0.0, -1.0, 0.0),
@@ -126,8 +145,10 @@ def preset_field(
     fluid = FluidParams(shape=(nz, ny, nx), voxel_m=h, dt_s=0.5 / FIELD_FRAME_RATE_HZ,
                         wind_m_s=tuple(float(v) for v in w), boundary="open",
                         viscosity_m2_s=0.0, diffusivity_m2_s=0.0, sources=(src,))
+    # The plume needs the time to cross the deeper part of the volume before the first frame.
+    spinup = 120 + (min(480, math.ceil(extra / abs(w[2]) * 60.0)) if w[2] != 0 else 0)
     cfg = SequenceConfig(name="field", fluid=fluid, volume_origin_m=origin,
-                         n_frames=n_frames, substeps=2, spinup_steps=120,
+                         n_frames=n_frames, substeps=2, spinup_steps=spinup,
                          spinup_dt_s=1.0 / 60.0, seed=seed, camera=cam, necl_ppm_m=100.0)
     return replace(cfg, **overrides) if overrides else cfg
 
