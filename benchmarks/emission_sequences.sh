@@ -10,12 +10,14 @@
 # whose wind has a Z component get a volume deep enough for the plume to leave through the
 # side of the view rather than vanish through the volume's far or near face in mid-image
 # (--volume-depth; r2_mostly_z_5m's plume, 72 deg out of the image plane, still reaches the
-# far face inside the view at 9.1 m: `eval emission` marks it "v"). About 15 min to
-# simulate and 2 min to evaluate on one core.
+# far face inside the view at 9.1 m: `eval emission` marks it "v"). 135 frames (4.5 s,
+# six correlation times of the release; 45 frames left a sequence's error to its
+# realisation: r2_mostly_z_5m +14.5 or +20.2 % with spin-ups 0.4 s apart). About 30 min to
+# simulate and 5 min to evaluate on one core.
 set -eu
 OUT=${1:?usage: $0 OUT [PYTHON]}
 PY=${2:-.venv/bin/python}
-FRAMES=${FRAMES:-45}
+FRAMES=${FRAMES:-135}
 sim() {  # name release wind_x wind_y wind_z distance [camera effects...]
     name=$1 rate=$2 wx=$3 wy=$4 wz=$5 dist=$6
     shift 6
