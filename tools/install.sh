@@ -50,3 +50,10 @@ else
     .venv/bin/python -m pip install -q .
 fi
 echo "install.sh: ogiflow installed in .venv ($(.venv/bin/ogiflow --version))"
+if [ "$dev" = 0 ] && [ "$cluster" = 0 ] && [ "${OGIFLOW_NO_WARMUP:-0}" != 1 ]; then
+    # What the first `ogiflow run` would otherwise do while acquiring (then it shows a
+    # coarse preview and skips pairs): render the simulated scene and compile the solvers.
+    echo "install.sh: rendering the simulated scene and compiling the solvers once (~2-3 min;" \
+         "OGIFLOW_NO_WARMUP=1 skips it)"
+    .venv/bin/ogiflow run --prepare --log-level WARNING
+fi

@@ -28,6 +28,11 @@ def register(root: argparse._SubParsersAction) -> None:
     add_config_arguments(p)
     p.add_argument("--duration", metavar="S", type=float, default=None,
                    help="stop after S seconds (default: run until SIGTERM/SIGINT)")
+    p.add_argument("--prepare", action="store_true",
+                   help="render the simulated scene (the configured one, not the quick "
+                        "preview; cached) and compile the solvers on its first triple, then "
+                        "exit: what a first start would otherwise do while acquiring. Opens "
+                        "no device; tools/install.sh runs it")
     p.add_argument("--log-level", default="INFO",
                    choices=("DEBUG", "INFO", "WARNING", "ERROR"),
                    help="verbosity of the log on stderr (journald under systemd)")
@@ -47,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = config_from_args(args)  # ConfigError (exit 2) before anything opens
     appliance = Appliance(cfg, duration_s=args.duration, announce=True)
     try:
+        if args.prepare:
+            print(f"ogiflow: ready: {appliance.warm_up()}")
+            return 0
         return appliance.run()
     except (ConfigError, AnemometerConfigError):
         raise  # a wrong option value found when the back end is built: exit 2

@@ -186,7 +186,29 @@ class Appliance:
             log.error("run failed: %s", text)
         return EXIT_FAILURE if self.failures else EXIT_OK
 
-    def _prepare(self) -> None:
+    def warm_up(self) -> str:
+        """What a first start would otherwise do while acquiring, then stop: render the
+        simulated scene (the configured one, cached) and run the chain once on its first
+        triple, which compiles numba's kernels into their on-disk cache. Opens no device.
+        Returns what it did, for the user."""
+        from processing.chain import ChainState, compute_scene_flow
+        from processing.synthetic import read_frame, read_sequence_meta
+
+        start = time.monotonic()
+        self._prepare(full_scene=True)
+        done = []
+        if self.site is not None and self.site.folder is not None:
+            done.append(f"simulated scene cached in {self.site.folder}")
+            meta = read_sequence_meta(self.site.folder)
+            f = [read_frame(self.site.folder, i, meta) for i in range(3)]
+            compute_scene_flow([x.left for x in f], [x.right for x in f], [x.t_s for x in f],
+                               self.geometry, self.params, ChainState())
+            done.append("the chain's kernels compiled")
+        else:
+            done.append("no simulated scene to render; the chain compiles on its first triple")
+        return f"{'; '.join(done)} ({time.monotonic() - start:.0f} s)"
+
+    def _prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
         from appliance.runtime.health import HealthMonitor
         from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
@@ -204,7 +226,7 @@ class Appliance:
         # minutes; the default 20 000 (40 000 between trims) took 33 min to level off.
         self.history = WindHistory(capacity=6000)
         self.site = SimulatedSite(cfg, self._mounting.rotation)
-        self.site.prepare()
+        self.site.prepare(full=full_scene)
         self.geometry = self._geometry()
         defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})

@@ -253,8 +253,11 @@ class SimulatedSite:
         v = rotation @ sensor
         return (float(v[0]), float(v[1]), float(v[2]))
 
-    def prepare(self) -> None:
+    def prepare(self, *, full: bool = False) -> None:
         """Render (once; cached) the scene and load its ground truth, when needed.
+
+        ``full``: render the configured scene now, in the foreground, never the preview
+        (``ogiflow run --prepare``).
 
         On the first start (nothing cached) a leak scene without a schedule is first
         rendered as its quick preview (:func:`preview_of`, about 20x less work) and shown
@@ -265,7 +268,7 @@ class SimulatedSite:
             return
         sim = self.cfg.simulation
         preview = preview_of(sim)
-        if (preview is not None
+        if (preview is not None and not full
                 and not (scene_folder(sim, self.wind_camera_m_s) / "meta.json").is_file()):
             log.warning("first start: showing a coarser %d-frame preview of the simulated "
                         "scene (%.2f m voxels) while the configured one renders in the "
