@@ -6,15 +6,17 @@ reference measured in the same run, because this machine is shared and noisy.
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
 from appliance.evaluation.benchmark import single_thread
 
-__all__ = ["differential_like_pair", "median_ms", "single_thread"]
+__all__ = ["differential_like_pair", "median_ms", "sequence_arguments", "single_thread"]
 
 
 def differential_like_pair(
@@ -55,3 +57,11 @@ def median_ms(fn: Callable[[], object], *, warmup: int = 3, runs: int = 30) -> f
         fn()
         times.append((time.perf_counter() - t) * 1e3)
     return statistics.median(times)
+
+
+def sequence_arguments(doc: str) -> argparse.Namespace:
+    """Command line of the emission analyses: sequence folders and ``--triples N``."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("sequences", nargs="+", type=Path)
+    ap.add_argument("--triples", type=int, default=None, help="first N triples only")
+    return ap.parse_args()

@@ -20,12 +20,12 @@ such a sequence are scored against a truth no image could be consistent with.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from appliance.evaluation.emission import iter_triples, sequence_setup
+from benchmarks.common import sequence_arguments
 from processing.emission.gas import ppm_m_to_kg_m2
 from processing.emission.placement import Placement
 from processing.emission.truth import true_curtain_flux
@@ -84,10 +84,7 @@ def continuity(directory: Path, triples: int | None) -> tuple[float, float, int]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sequences", nargs="+", type=Path)
-    ap.add_argument("--triples", type=int, default=None, help="first N triples only")
-    args = ap.parse_args()
+    args = sequence_arguments(__doc__)
     for seq in args.sequences:
         kappa, corr, n = continuity(seq, args.triples)
         print(f"{seq.name}: dM/dt = kappa (Q_k - Q_k+1) with kappa {kappa:.2f}, "

@@ -16,12 +16,12 @@ nearest the source). The input whose truth removes the error is the one that cau
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
 from appliance.evaluation.emission import iter_triples, sequence_setup
+from benchmarks.common import sequence_arguments
 from processing.emission.curtains import curtain_flux
 from processing.emission.gas import ppm_m_to_kg_m2
 from processing.emission.truth import true_curtain_flux
@@ -85,10 +85,7 @@ def decompose(directory: Path, triples: int | None) -> dict[str, np.ndarray]:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("sequences", nargs="+", type=Path)
-    ap.add_argument("--triples", type=int, default=None, help="first N triples only")
-    args = ap.parse_args()
+    args = sequence_arguments(__doc__)
     for seq in args.sequences:
         r = decompose(seq, args.triples)
         both = np.isfinite(r["truth"]) & np.all([np.isfinite(r[k]) for k in INPUTS], axis=0)
