@@ -6,22 +6,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from processing.synthetic.geometry import StereoCamera
 from processing.synthetic.presets import preset_field
-from processing.synthetic.volume_exit import PlumeExit, plume_exit
+from processing.synthetic.volume_exit import PlumeExit, plume_exit, sequence_plume_exit
 
 
 def _exit(cfg) -> PlumeExit | None:
-    f, cam = cfg.fluid, cfg.camera
-    origin = np.asarray(cfg.volume_origin_m)
-    extent = np.asarray(f.shape[::-1]) * f.voxel_m
-    source = origin + np.asarray(f.sources[0].position_m)
-    return plume_exit(source, np.asarray(f.wind_m_s), origin, extent,
-                      camera_constant=cam.s_px, principal_point=(cam.cx, cam.cy),
-                      image_size=(cam.width, cam.height))
+    return sequence_plume_exit(cfg.meta())
 
 
 def test_plume_exit_finds_the_first_face_and_whether_the_camera_sees_it() -> None:
-    kw = dict(camera_constant=780.0, principal_point=(159.5, 119.5), image_size=(320, 240))
+    kw = dict(camera=StereoCamera())  # s 780 px, principal point (159.5, 119.5), 320 x 240
     origin, extent = np.array([-1.5, -1.0, 5.0]), np.array([3.0, 2.0, 1.0])
     # Straight away from the camera, on the axis: through the far face, mid-image.
     e = plume_exit(np.array([0.0, 0.0, 5.5]), np.array([0.0, 0.0, 2.0]), origin, extent, **kw)

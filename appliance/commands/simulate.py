@@ -273,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
             f"  N {stats['n_px']:.0f} px  ({time.perf_counter() - start:.1f} s)"
         )
         leave = sequence_plume_exit(meta)
-        if leave is not None and leave.in_view and leave.face in ("near", "far"):
+        if leave is not None and leave.vanishes_in_view:
             print(f"{cfg.name}: note: the plume leaves the simulated volume through its "
                   f"{leave.describe()}: its gas vanishes in mid-image (use --volume-depth "
                   "for a plume that leaves through the side of the view)")

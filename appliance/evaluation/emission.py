@@ -241,8 +241,7 @@ def _record(meta: dict[str, Any], series: dict[str, list[float | None]], window:
         "camera_effects": bool(opts.get("noise_netd_k") or opts.get("jitter_px")
                                or opts.get("gain_mismatch") or opts.get("radiometric_mismatch")),
         "volume_exit": None if leave is None else leave.describe(),
-        "vanishes_in_view": bool(leave is not None and leave.in_view
-                                 and leave.face in ("near", "far")),
+        "vanishes_in_view": leave is not None and leave.vanishes_in_view,
         "seconds": seconds,
         "series": series,
     }

@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from processing.synthetic.geometry import StereoCamera, project_points
+
 #: Face names by (axis, side): side 0 is the face at the volume's origin.
 _FACES = {(0, 0): "left", (0, 1): "right", (1, 0): "top", (1, 1): "bottom",
           (2, 0): "near", (2, 1): "far"}
@@ -37,7 +39,7 @@ class PlumeExit:
     point_m : (float, float, float)
         The exit point in the left camera frame, m.
     image_xy : (float, float) or None
-        Its pixel in the left image (pinhole, no distortion); None behind the camera.
+        Its pixel in the left image; None behind the camera.
     in_view : bool
         True when that pixel lies inside the image: the gas vanishes where the camera
         sees it.
@@ -48,6 +50,13 @@ class PlumeExit:
     image_xy: tuple[float, float] | None
     in_view: bool
 
+    @property
+    def vanishes_in_view(self) -> bool:
+        """Through the near or far face inside the view: the gas vanishes in mid-image
+        (a side face inside the view only cuts the plume at its end, as the image border
+        does)."""
+        return self.in_view and self.face in ("near", "far")
+
     def describe(self) -> str:
         """One line for a user, e.g. ``far face at Z 6.22 m, inside the view``."""
         where = "inside the view" if self.in_view else "outside the view"
@@ -55,9 +64,7 @@ class PlumeExit:
 
 
 def plume_exit(source_m: np.ndarray, wind_m_s: np.ndarray, origin_m: np.ndarray,
-               extent_m: np.ndarray, *, camera_constant: float,
-               principal_point: tuple[float, float],
-               image_size: tuple[int, int]) -> PlumeExit | None:
+               extent_m: np.ndarray, camera: StereoCamera) -> PlumeExit | None:
     """First face of the volume the plume's axis crosses (module docstring).
 
     Parameters
@@ -68,12 +75,8 @@ def plume_exit(source_m: np.ndarray, wind_m_s: np.ndarray, origin_m: np.ndarray,
         Ambient wind, m/s, left camera frame (X right, Y down, Z forward).
     origin_m, extent_m : ndarray, shape (3,)
         The volume's corner with the smallest coordinates and its size, m.
-    camera_constant : float
-        s, px.
-    principal_point : (float, float)
-        (x0, y0), px.
-    image_size : (int, int)
-        (width, height), px.
+    camera : StereoCamera
+        The cameras (the left one's projection is used).
 
     Returns
     -------
@@ -100,24 +103,24 @@ def plume_exit(source_m: np.ndarray, wind_m_s: np.ndarray, origin_m: np.ndarray,
     point = p0 + best_t * w
     image_xy, in_view = None, False
     if point[2] > 0:
-        x = principal_point[0] + camera_constant * point[0] / point[2]
-        y = principal_point[1] + camera_constant * point[1] / point[2]
+        x, y = project_points(camera, point)[0]
         image_xy = (float(x), float(y))
-        in_view = bool(0.0 <= x <= image_size[0] - 1 and 0.0 <= y <= image_size[1] - 1)
+        in_view = bool(0.0 <= x <= camera.width - 1 and 0.0 <= y <= camera.height - 1)
     return PlumeExit(_FACES[best], (float(point[0]), float(point[1]), float(point[2])),
                      image_xy, in_view)
 
 
 def sequence_plume_exit(meta: dict) -> PlumeExit | None:
-    """:func:`plume_exit` of a sequence written by ``ogiflow simulate`` (its ``meta.json``);
-    None when it has no source or no wind."""
+    """:func:`plume_exit` of a sequence written by ``ogiflow simulate`` (its ``meta.json``,
+    or ``SequenceConfig.meta()``); None when it has no source or no wind."""
     sim, cam = meta["simulation"], meta["camera"]
     if not sim.get("sources"):
         return None
     origin = np.asarray(sim["volume_origin_m"], np.float64)
     extent = np.asarray(sim["grid_zyx"][::-1], np.float64) * float(sim["voxel_m"])
     source = origin + np.asarray(sim["sources"][0]["position_m"], np.float64)
-    return plume_exit(source, np.asarray(meta["wind_m_s"], np.float64), origin, extent,
-                      camera_constant=float(cam["s_px"]),
-                      principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
-                      image_size=(int(cam["width"]), int(cam["height"])))
+    camera = StereoCamera(width=int(cam["width"]), height=int(cam["height"]),
+                          s_px=float(cam["s_px"]), cx_px=float(cam["cx_px"]),
+                          cy_px=float(cam["cy_px"]), b_m=float(cam["b_m"]),
+                          k1=float(cam.get("k1", 0.0)), k2=float(cam.get("k2", 0.0)))
+    return plume_exit(source, np.asarray(meta["wind_m_s"], np.float64), origin, extent, camera)
