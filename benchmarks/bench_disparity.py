@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import cv2
 import numpy as np
 
-from processing.baselines import farneback_flow
-from processing.disparity import joint_disparity
-from processing.optical_flow import brox_optical_flow
+from processing.flow.brox import brox_optical_flow
+from processing.metrics.baselines import farneback_flow
+from processing.stereo.joint import joint_disparity
 
 H, W = 240, 320
 

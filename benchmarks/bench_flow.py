@@ -13,8 +13,8 @@ import argparse
 import json
 
 from benchmarks.common import differential_like_pair, median_ms, single_thread
-from processing.opencv_flow import dis_flow, farneback_flow
-from processing.optical_flow import brox_optical_flow
+from processing.flow.brox import brox_optical_flow
+from processing.flow.opencv import dis_flow, farneback_flow
 
 
 def main() -> None:

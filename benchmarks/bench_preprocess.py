@@ -31,10 +31,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from processing.denoise import sobolev_denoise
-from processing.preprocess import preprocess_camera
-from processing.registration import estimate_shift, warp_translation
-from processing.segmentation import segment_gas
+from processing.preprocess.denoise import sobolev_denoise
+from processing.preprocess.differential import preprocess_camera
+from processing.preprocess.registration import estimate_shift, warp_translation
+from processing.segmentation.segment import segment_gas
 
 
 def _frames(h: int = 240, w: int = 320) -> list[np.ndarray]:

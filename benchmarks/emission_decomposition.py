@@ -26,7 +26,7 @@ from processing.emission.curtains import curtain_flux
 from processing.emission.gas import ppm_m_to_kg_m2
 from processing.emission.truth import true_curtain_flux
 from processing.synthetic.reference import eq4_reference
-from processing.velocity import scene_flow_velocity
+from processing.velocity.triangulate import scene_flow_velocity
 
 INPUTS = ("measured", "true w", "true d", "true d'", "true sigma", "all true")
 

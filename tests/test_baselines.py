@@ -5,13 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from processing.baselines import (
-    change_along_flow,
-    sgbm_disparity,
-    sgbm_initial_disparity,
-    sgm_brox,
-    sgm_farneback,
-)
+from processing.metrics.baselines import change_along_flow, sgm_brox, sgm_farneback
+from processing.stereo.sgm import sgbm_disparity, sgbm_initial_disparity
 from tests.scene_flow_plane import moving_plane
 
 # SGBM with a 128 px search range has no result left of x = 127.

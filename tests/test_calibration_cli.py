@@ -12,11 +12,7 @@ from appliance import cli
 from processing.calibration import load_calibration, save_calibration
 from processing.calibration.pattern import PatternSpec
 from processing.calibration.radiometric import band_radiance, celsius_to_kelvin
-from processing.calibration.synthetic import (
-    example_rig,
-    random_target_poses,
-    render_stereo_views,
-)
+from processing.calibration.rig import example_rig, random_target_poses, render_stereo_views
 
 RIG = example_rig()
 SPEC = PatternSpec("chessboard", 6, 9, 0.05)

@@ -20,7 +20,7 @@ from processing.calibration import (
     save_radiometric,
     stereo_rectification,
 )
-from processing.calibration.synthetic import example_rig
+from processing.calibration.rig import example_rig
 
 CURVE_L = CharacteristicCurve(offset=12000.0, gain=45000.0, residual_rms_counts=0.4,
                               temperatures_k=(293.15, 323.15), residuals_counts=(0.1, -0.1),

@@ -14,7 +14,7 @@ from processing.calibration.pattern import (
     right_handed,
     to_gray8,
 )
-from processing.calibration.synthetic import (
+from processing.calibration.rig import (
     camera_rays,
     example_rig,
     ir_counts,

@@ -23,12 +23,8 @@ from processing.calibration import (
     rectify_pair,
 )
 from processing.calibration.pattern import PatternSpec, detect_pattern, object_points
+from processing.calibration.rig import example_rig, random_target_poses, render_stereo_views
 from processing.calibration.stereo import outlier_threshold
-from processing.calibration.synthetic import (
-    example_rig,
-    random_target_poses,
-    render_stereo_views,
-)
 
 RIG = example_rig()
 CHESS = PatternSpec("chessboard", 6, 9, 0.05)

@@ -12,7 +12,7 @@ from processing.chain import (
     compute_scene_flow,
     frame_interval,
 )
-from processing.summary import GasSummary
+from processing.chain.summary import GasSummary
 from tests.scene_flow_plane import B_M, PP, S_PX, SIZE, render, texture
 
 GEOMETRY = StereoGeometry(

@@ -1,11 +1,11 @@
-"""d' coherence along the flow (processing.coherence): carried values land where gas moved."""
+"""d' coherence along the flow (processing.stereo.coherence): values land where gas moved."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from processing.coherence import carry_along_flow, smooth_disparity_change
+from processing.stereo.coherence import carry_along_flow, smooth_disparity_change
 
 
 def test_carry_along_a_uniform_flow_shifts_the_field() -> None:

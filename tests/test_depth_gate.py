@@ -1,12 +1,12 @@
-"""Depth-band gate (processing.depth_gate): objects out of the gas's band, wherever they are."""
+"""Depth-band gate (processing.preprocess.depth_gate): objects out of the gas's band."""
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
-from processing.depth_gate import DepthGate, apply_gate, out_of_band_motion
-from processing.preprocess import PreprocessedTriple
+from processing.preprocess.depth_gate import DepthGate, apply_gate, out_of_band_motion
+from processing.preprocess.differential import PreprocessedTriple
 
 H, W = 120, 320
 BAND = (40.0, 72.0)  # the gas's disparity band, px

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from processing.disparity import joint_disparity
-from processing.optical_flow import brox_optical_flow
+from processing.flow.brox import brox_optical_flow
+from processing.stereo.joint import joint_disparity
 from tests.scene_flow_plane import S_PX, moving_plane, render, texture
 
 # Pixels whose correspondences lie inside all four images at d ~ 78 px (the left 78 columns
@@ -178,7 +178,7 @@ def test_bad_input_raises(change, message: str) -> None:
 
 
 def test_catmull_rom_warp_is_exact_for_quadratics_and_integer_shifts() -> None:
-    from processing import derivatives
+    from processing.solvers import derivatives
 
     yy, xx = np.mgrid[0:30, 0:40].astype(np.float32)
     quad = 0.01 * (xx - 12.0) ** 2 + 0.02 * (yy - 7.0) ** 2 + 0.003 * xx * yy
@@ -200,7 +200,7 @@ def test_catmull_rom_warp_is_exact_for_quadratics_and_integer_shifts() -> None:
 
 
 def test_row_warp_equals_the_general_warp_on_pixel_rows() -> None:
-    from processing import derivatives
+    from processing.solvers import derivatives
 
     rng = np.random.default_rng(3)
     img = rng.random((20, 30)).astype(np.float32)

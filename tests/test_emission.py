@@ -344,7 +344,7 @@ def test_v_z_enters_a_curtain_flux_only_through_the_depth_at_t1() -> None:
     """On a curtain of viewing rays V . n = Z1 f (w . n) / s with Z1 = s b / (d + d'):
     a d' that changes V_Z by metres per second changes the rate by d / (d + d') only
     (README, "What the rate takes from the scene flow"), even far off the optical axis."""
-    from processing.velocity import scene_flow_velocity
+    from processing.velocity.triangulate import scene_flow_velocity
 
     b, dt, d = 0.3, 1 / 30, 40.0
     flow = np.zeros((H, W, 2), np.float32)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from appliance import cli
-from processing.flo import write_flo
+from processing.metrics.flo import write_flo
 from tests.flow_helpers import pair_with_flow, texture
 
 

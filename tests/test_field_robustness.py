@@ -15,8 +15,8 @@ from processing.chain import (
     compute_scene_flow,
     initial_scale,
 )
-from processing.preprocess import PreprocessedTriple, scale_samples
-from processing.registration import estimate_shift_checked
+from processing.preprocess.differential import PreprocessedTriple, scale_samples
+from processing.preprocess.registration import estimate_shift_checked
 from processing.synthetic.cameras import pixel_mean_background
 from processing.synthetic.imaging import (
     Background,
@@ -152,8 +152,8 @@ def test_jitter_is_registered_within_005_px_while_a_warm_object_crosses(seed: in
 
 
 def test_low_contrast_is_flagged_and_strong_gas_is_not() -> None:
-    from processing.disturbances import preprocess_flags
-    from processing.preprocess import PreprocessedTriple
+    from processing.chain.flags import preprocess_flags
+    from processing.preprocess.differential import PreprocessedTriple
 
     rng = np.random.default_rng(0)
     noise = (0.5 + rng.normal(0.0, 0.01, (60, 80))).astype(np.float32)

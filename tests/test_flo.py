@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from processing.flo import known_mask, read_flo, write_flo
+from processing.metrics.flo import known_mask, read_flo, write_flo
 
 
 def test_round_trip(tmp_path: Path) -> None:

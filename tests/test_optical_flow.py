@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.flo import known_mask, read_flo
-from processing.flow_metrics import average_endpoint_error
-from processing.optical_flow import brox_optical_flow
+from processing.flow.brox import brox_optical_flow
+from processing.metrics.flo import known_mask, read_flo
+from processing.metrics.flow import average_endpoint_error
 from tests.flow_helpers import pair_with_flow, texture
 
 INNER = (slice(12, -12), slice(12, -12))  # away from borders where data leave the frame

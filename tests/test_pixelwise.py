@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from processing.pixelwise import velocity_and_quality
-from processing.quality import scene_flow_energy
-from processing.velocity import scene_flow_velocity, surface_position
+from processing.velocity.pixelwise import velocity_and_quality
+from processing.velocity.quality import scene_flow_energy
+from processing.velocity.triangulate import scene_flow_velocity, surface_position
 
 GEO = dict(principal_point=(15.5, 11.0), camera_constant=300.0, baseline=0.2)
 

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from processing.calibration.radiometric import CharacteristicCurve
-from processing.normalisation import DiffScaleTracker, normalise_difference
-from processing.preprocess import (
+from processing.preprocess.differential import (
     apply_rectification,
     preprocess_camera,
     preprocess_stereo,
     radiometric_correction,
 )
-from processing.registration import warp_translation
+from processing.preprocess.normalisation import DiffScaleTracker, normalise_difference
+from processing.preprocess.registration import warp_translation
 
 
 def _scene(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:

@@ -7,7 +7,7 @@ import pytest
 from scipy import sparse
 from scipy.sparse.linalg import spsolve
 
-from processing.denoise import sobolev_denoise
+from processing.preprocess.denoise import sobolev_denoise
 
 
 def _neumann_forward_difference(n: int) -> sparse.csr_matrix:

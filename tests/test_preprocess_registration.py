@@ -8,7 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.registration import estimate_shift, register_to_reference, warp_translation
+from processing.preprocess.registration import (
+    estimate_shift,
+    register_to_reference,
+    warp_translation,
+)
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "ogi" / "leak_seq"
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.quality import c_usf, scene_flow_energy
+from processing.velocity.quality import c_usf, scene_flow_energy
 
 D, DP, U, V = 6, 1, 2, 1  # integer shifts: bicubic warps are exact, the match perfect
 H, W = 60, 80

@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from processing import redblack
+from processing.solvers import redblack
 
 
 def _system(h: int, w: int, seed: int) -> dict[str, np.ndarray]:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from processing import sceneflow_metrics as sm
+from processing.metrics import sceneflow as sm
 
 
 def _field(vectors: list[list[float]]) -> np.ndarray:

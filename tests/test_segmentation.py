@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.level_set import dirac, heaviside
-from processing.segmentation import initial_phi, segment_gas
+from processing.segmentation.level_set import dirac, heaviside
+from processing.segmentation.segment import initial_phi, segment_gas
 
 
 def _moving_blob(

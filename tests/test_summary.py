@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from processing.summary import directional_angles, summarize_frame
+from processing.chain.summary import directional_angles, summarize_frame
 
 
 def _fields(h: int = 6, w: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

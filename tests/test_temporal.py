@@ -14,7 +14,7 @@ GEOMETRY = StereoGeometry(
     camera_constant=S_PX, principal_point=PP, baseline=B_M, image_size=(SIZE[1], SIZE[0])
 )
 # temporal_weight 0: this file tests the warm start alone; with the d' coherence filter
-# (processing.coherence) a warm triple also blends the previous d' on purpose.
+# (processing.stereo.coherence) a warm triple also blends the previous d' on purpose.
 PARAMS = ChainParameters(register=False, disparity_init="d0", d0=60.0, temporal_weight=0.0)
 V_TRUE = np.array([0.3, -0.2, -0.5])
 DT = 1 / 30
@@ -128,7 +128,7 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
     """Curves and rectification maps: the chain's per-frame cache gives exactly the
     differential images of pre-processing the raw triple directly."""
     from processing.calibration.radiometric import CharacteristicCurve
-    from processing.preprocess import preprocess_stereo
+    from processing.preprocess.differential import preprocess_stereo
 
     seq = _sequence(4)
     h, w = SIZE
@@ -153,18 +153,18 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
 
 
 def test_shift_memo_answers_only_the_exact_frame_pair() -> None:
-    from processing.temporal import LocalShiftMemo, known_shifts
+    from processing.chain.shifts import LocalShiftMemo
 
     memo = LocalShiftMemo(capacity=4)
     memo.put(0, 1.0, 2.0, (0.1, 0.0), False)
     memo.put(1, 1.0, 2.0, (0.0, 0.0), True)
     state = ChainState(shifts=memo)
-    assert known_shifts(state, (0.0, 1.0, 2.0)) == ((None, ((0.1, 0.0), False)),
-                                                    (None, ((0.0, 0.0), True)))
-    assert known_shifts(state, (1.0, 2.0, 3.0)) == ((((0.1, 0.0), False), None),
-                                                    (((0.0, 0.0), True), None))
-    assert known_shifts(state, (2.0, 3.0, 4.0)) == ((None, None), (None, None))
-    assert known_shifts(None, (1.0, 2.0, 3.0)) == ((None, None), (None, None))
+    assert state.known_shifts((0.0, 1.0, 2.0)) == ((None, ((0.1, 0.0), False)),
+                                                   (None, ((0.0, 0.0), True)))
+    assert state.known_shifts((1.0, 2.0, 3.0)) == ((((0.1, 0.0), False), None),
+                                                   (((0.0, 0.0), True), None))
+    assert state.known_shifts((2.0, 3.0, 4.0)) == ((None, None), (None, None))
+    assert state.shifts_reused == 4
     for k in range(8):  # bounded: the oldest entries go
         memo.put(0, 10.0 + k, 11.0 + k, (0.0, 0.0), False)
     assert memo.get(0, 1.0, 2.0) is None and memo.get(0, 17.0, 18.0) is not None
@@ -179,12 +179,12 @@ def test_two_workers_sharing_shifts_give_identical_results_with_half_the_estimat
     import multiprocessing
 
     from appliance.runtime.shiftshare import SharedShiftMemo, create_shift_table
-    from processing.temporal import LocalShiftMemo
+    from processing.chain.shifts import LocalShiftMemo
 
     left, right, times = _sequence(8)
     rng = np.random.default_rng(3)
     # sub-pixel camera jitter on both cameras (what registration removes)
-    from processing.registration import warp_translation
+    from processing.preprocess.registration import warp_translation
     left = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))
             .astype(np.uint16) for f in left]
     right = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))

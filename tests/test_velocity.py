@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from processing.disparity import joint_disparity
-from processing.optical_flow import brox_optical_flow
-from processing.velocity import scene_flow_velocity, surface_position
+from processing.flow.brox import brox_optical_flow
+from processing.stereo.joint import joint_disparity
+from processing.velocity.triangulate import scene_flow_velocity, surface_position
 from tests.scene_flow_plane import B_M, PP, S_PX, moving_plane
 
 GEOM = {"principal_point": (1.0, 0.5), "camera_constant": 100.0, "baseline": 0.5}

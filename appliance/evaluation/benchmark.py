@@ -126,7 +126,7 @@ def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> S
     """Median per-stage and whole-chain times, warm and cold, in this process (one thread)."""
     from appliance.evaluation import roofline
     from processing.chain import ChainParameters, ChainState, compute_scene_flow
-    from processing.opencv_flow import farneback_flow
+    from processing.flow.opencv import farneback_flow
 
     if runs < 1 or warmup < 1:
         raise ValueError(f"runs and warmup must be >= 1, got {runs} and {warmup}")
@@ -202,7 +202,7 @@ def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, strid
     os.environ["OMP_NUM_THREADS"] = "1"
     single_thread()
     from processing.chain import ChainParameters, ChainState, compute_scene_flow
-    from processing.temporal import STRIDES
+    from processing.chain.state import STRIDES
 
     geo, params = geometry(), ChainParameters()
     state = ChainState(stride=stride if stride in STRIDES else 1)

@@ -79,8 +79,8 @@ def time_method(
 def flow_methods(alpha: float, beta: float, grid: bool = False) -> dict[str, FlowFn]:
     """Our Brox flow with (alpha, beta), OpenCV Farneback and DIS medium; with ``grid`` also
     Brox at every (alpha, beta) of the paper's Table 1."""
-    from processing.opencv_flow import dis_flow, farneback_flow
-    from processing.optical_flow import brox_optical_flow
+    from processing.flow.brox import brox_optical_flow
+    from processing.flow.opencv import dis_flow, farneback_flow
 
     def brox(a: float, b: float) -> FlowFn:
         return lambda i0, i1: brox_optical_flow(i0, i1, alpha=a, beta=b)
@@ -110,8 +110,8 @@ def evaluate_flow(dataset: Path, methods: dict[str, FlowFn], repeats: int,
     ValueError
         ``repeats`` < 1, no sequence, or frames and ground truth of a sequence differ in size.
     """
-    from processing.flo import known_mask, read_flo
-    from processing.flow_metrics import average_endpoint_error
+    from processing.metrics.flo import known_mask, read_flo
+    from processing.metrics.flow import average_endpoint_error
 
     if repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {repeats}")

@@ -5,8 +5,9 @@ Every subfolder of the data folder holding images named ``*frame<N>.<ext>`` (JPE
 frame numbers (N, N+1, N+2) are processed, so sets whose frames are not all consecutive are
 split into their consecutive runs (e.g. the ``nonleak`` set of ``data/ogi``: 0-18, 1536-1539,
 3019-3023). For each triple: differential images (Eq. 2) with jitter removal and Sobolev
-denoising (:func:`processing.preprocess.preprocess_camera`, identity characteristic curve:
-the footage is uncalibrated counts), Brox flow between the two differential images (Eq. 5)
+denoising (:func:`processing.preprocess.differential.preprocess_camera`, identity
+characteristic curve: the footage is uncalibrated counts), Brox flow between the two
+differential images (Eq. 5)
 and the level-set segmentation (Eq. 9). Reported per frame: the segmented gas fraction
 (gas pixels / all pixels) of I_diff(t0 = N), the gas/background activity ratio, the
 registration shifts and the median flow magnitude.
@@ -202,9 +203,9 @@ def iter_mono_triples(name: str, frames: list[tuple[int, Path]], settings: Foota
     ValueError
         An unreadable image, or frames of one triple that differ in size.
     """
-    from processing.optical_flow import brox_optical_flow
-    from processing.preprocess import preprocess_camera
-    from processing.segmentation import segment_gas
+    from processing.flow.brox import brox_optical_flow
+    from processing.preprocess.differential import preprocess_camera
+    from processing.segmentation.segment import segment_gas
 
     paths = dict(frames)
     shift01 = None

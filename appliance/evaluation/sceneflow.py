@@ -7,14 +7,14 @@ the left view from the same pre-processed differential images:
 - ``proposed``: the whole chain, :func:`processing.chain.compute_scene_flow` (Brox flow,
   joint d and d' of Eq. 6, Eq. 4, segmentation of Eq. 9);
 - ``sgm_brox`` and ``sgm_farneback``: the decoupled baselines of
-  :mod:`processing.baselines` on the chain's four normalised differential images, turned
-  into V by the same Eq. 4 (:func:`processing.velocity.scene_flow_velocity`) with the same
-  dt.
+  :mod:`processing.metrics.baselines` on the chain's four normalised differential images,
+  turned into V by the same Eq. 4
+  (:func:`processing.velocity.triangulate.scene_flow_velocity`) with the same dt.
 
 All are scored over the chain's segmented gas region (the baselines have no segmentation
 of their own, and one region keeps the comparison about velocity) against the triplet's
 reference V* (:func:`processing.synthetic.reference.triplet_reference`) with the metrics of
-:mod:`processing.sceneflow_metrics` (Sec. 5.1, Eq. 10). RMVE and AEMV are given as mean and
+:mod:`processing.metrics.sceneflow` (Sec. 5.1, Eq. 10). RMVE and AEMV are given as mean and
 standard deviation over the frames, the other metrics as means.
 """
 
@@ -28,8 +28,6 @@ from typing import Any
 
 import numpy as np
 
-from processing import sceneflow_metrics as sm
-from processing.baselines import sgm_brox, sgm_farneback
 from processing.chain import (
     ChainParameters,
     ChainState,
@@ -37,11 +35,13 @@ from processing.chain import (
     StereoGeometry,
     compute_scene_flow,
 )
-from processing.quality import c_usf, scene_flow_energy
+from processing.metrics import sceneflow as sm
+from processing.metrics.baselines import sgm_brox, sgm_farneback
 from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
 from processing.synthetic.reference import triplet_reference
 from processing.synthetic.storage import META_NAME, list_sequences
-from processing.velocity import scene_flow_velocity
+from processing.velocity.quality import c_usf, scene_flow_energy
+from processing.velocity.triangulate import scene_flow_velocity
 
 METHODS = ("proposed", "sgm_brox", "sgm_farneback")
 METHOD_LABELS = {"proposed": "Proposed", "sgm_brox": "SGM+Brox", "sgm_farneback": "SGM+Fbck"}
@@ -107,7 +107,7 @@ def frame_metrics(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
                   u_sf: np.ndarray, u_sf_valid: np.ndarray, reference: np.ndarray,
                   reference_mask: np.ndarray,
                   column_density: np.ndarray | None = None) -> Metrics:
-    """All per-frame metrics of one method (see :mod:`processing.sceneflow_metrics`).
+    """All per-frame metrics of one method (see :mod:`processing.metrics.sceneflow`).
 
     ``velocity``/``valid`` are the method's V and validity, ``gas_mask`` the segmented
     region, ``reference``/``reference_mask`` V* and the reference gas mask. With the

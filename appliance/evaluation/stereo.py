@@ -69,8 +69,8 @@ def evaluate_stereo(
         {"variational": {"mae", "bad1", "ms"}, "sgbm": {"mae", "bad1", "valid", "ms"}}
         with mae in px, bad1 and valid as fractions of the known ground-truth pixels.
     """
-    from processing.baselines import sgbm_disparity, sgbm_initial_disparity
-    from processing.disparity import joint_disparity
+    from processing.stereo.joint import joint_disparity
+    from processing.stereo.sgm import sgbm_disparity, sgbm_initial_disparity
 
     known = gt > 0
     if not known.any():

@@ -17,8 +17,8 @@ import numpy as np
 
 from appliance.recording import schemas
 from appliance.runtime.workers import WorkerResult
+from processing.chain.summary import directional_angles
 from processing.emission.rate import RateEstimate, RateWindow
-from processing.summary import directional_angles
 
 
 class ResultPublisher:

@@ -256,7 +256,7 @@ class PairRing:
             Take only windows whose last pair's sequence number is ``phase`` modulo
             ``stride`` (1 <= stride <= MAX_STRIDE, 0 <= phase < stride). Two workers with
             stride 2 and phases 0 and 1 then see every other triple each, so that each can
-            start from its own previous triple (:mod:`processing.temporal`); ``skipped``
+            start from its own previous triple (:mod:`processing.chain.state`); ``skipped``
             counts the windows of this phase that were never taken.
         max_lag : int, optional
             Hand windows out in order instead: the one right after this phase's last

@@ -3,7 +3,7 @@
 With two workers alternating, worker A's triple (t0, t1, t2) and worker B's next triple
 (t1, t2, t3) both need the t1 -> t2 shift of each camera; each shift depends only on its
 two frames, so the first worker to estimate it publishes it here and the other reads it
-(:class:`processing.temporal.ShiftMemo`). Each triple then estimates one shift per camera
+(:class:`processing.chain.shifts.ShiftMemo`). Each triple then estimates one shift per camera
 instead of two, with identical results. A miss (the other worker has not got there yet, a
 slot overwritten) only means estimating it again.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from processing.temporal import KnownShift
+from processing.chain.shifts import KnownShift
 
 #: Slots of the table: far more than the frames two workers have in flight.
 SLOTS = 64
@@ -27,7 +27,7 @@ def create_shift_table(ctx: Any, slots: int = SLOTS) -> Any:
 
 
 class SharedShiftMemo:
-    """A :class:`processing.temporal.ShiftMemo` over a table from :func:`create_shift_table`.
+    """A :class:`processing.chain.shifts.ShiftMemo` over a table from :func:`create_shift_table`.
 
     Slot of a shift: its first frame's time in ms and its camera, modulo the slot count; a
     slot holds the exact times, so a stale or colliding entry never matches.

@@ -11,7 +11,7 @@ thresholds makes the fast case the normal one. Freed memory then stays in the pr
 (up to the trim threshold), which costs a little resident memory and nothing else.
 
 Still needed after the solvers moved to preallocated workspaces
-(:mod:`processing.variational`): without these settings a warm triple of the chain still
+(:mod:`processing.solvers.variational`): without these settings a warm triple of the chain still
 took 3700 minor page faults and 8 ms of system time (measured, issue 15), from the
 full-size numpy and OpenCV temporaries around the solvers.
 

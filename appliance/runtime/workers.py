@@ -210,7 +210,7 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
 
 def share_of_stream(worker_id: int, n_workers: int) -> tuple[int, int]:
     """(stride, phase) of a worker's triples: every other one for two workers, else all."""
-    from processing.temporal import STRIDES
+    from processing.chain.state import STRIDES
 
     if n_workers > 1 and n_workers in STRIDES:
         return n_workers, worker_id % n_workers

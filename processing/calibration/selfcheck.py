@@ -16,12 +16,8 @@ import argparse
 import numpy as np
 
 from processing.calibration.pattern import PatternSpec
+from processing.calibration.rig import example_rig, random_target_poses, render_stereo_views
 from processing.calibration.stereo import calibrate_stereo_images
-from processing.calibration.synthetic import (
-    example_rig,
-    random_target_poses,
-    render_stereo_views,
-)
 
 _SPECS = {
     "chessboard": PatternSpec("chessboard", 6, 9, 0.05),

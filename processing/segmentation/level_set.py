@@ -1,7 +1,7 @@
 """The descent of the two-region level set of Eq. 9 (paper Sec. 4.4): the Gaussian region
 force log q_g - log q_bg and the semi-implicit Chan-Vese curvature sweeps.
 
-Used by :func:`processing.segmentation.segment_gas`, whose docstring describes the scheme
+Used by :func:`processing.segmentation.segment.segment_gas`, whose docstring describes the scheme
 (Getreuer, IPOL 2012, in Jacobi order; region models re-estimated before every sweep).
 """
 

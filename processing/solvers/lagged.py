@@ -3,8 +3,8 @@
 At each lagged fixed-point iteration (Brox et al. 2004) the flow solver (paper Eq. 5) and
 the joint disparity solver (Eq. 6) freeze the Charbonnier weights psi'(|grad f|^2) of their
 smoothness terms and turn them into edge weights of the linear system that
-:mod:`processing.redblack` solves. Assembling a system on the full grid and scattering it
-with :func:`processing.redblack.pack_system` costs about as much as ten SOR iterations
+:mod:`processing.solvers.redblack` solves. Assembling a system on the full grid and scattering it
+with :func:`processing.solvers.redblack.pack_system` costs about as much as ten SOR iterations
 (stride-2 scatter of 13 planes), so the solvers keep their unknowns and inputs compact for a
 whole warp and compute psi', edge weights and diagonals per colour here, with contiguous,
 vectorisable row loops.
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from processing import redblack
-from processing.redblack import (
+from processing.solvers import redblack
+from processing.solvers.redblack import (
     INV_D1,
     INV_D2,
     W1_DOWN,
@@ -160,7 +160,7 @@ def edge_weights(
     """Write the four edge weights of one colour into ``coef[plane:plane + 4]``.
 
     Weight = ``scale`` * mean of the two pixels' psi' * edge mask (Neumann borders).
-    ``plane`` is :data:`processing.redblack.W1` or :data:`~processing.redblack.W2`.
+    ``plane`` is :data:`processing.solvers.redblack.W1` or :data:`~processing.solvers.redblack.W2`.
     """
     h = psi_own.shape[0] - 2
     n = psi_own.shape[1] - 2

@@ -9,7 +9,7 @@ with E2 = I1(x + w) - I0(x) (brightness constancy, paper Eq. 3b), its spatial gr
 et al.: coarse-to-fine warping over a pyramid, and at every level nested fixed-point
 iterations - the outer ones re-warp I1 with the current flow, the inner ones freeze
 ("lag") the non-linear psi' weights and solve the resulting linear system in the flow
-increment with red-black SOR (:mod:`processing.redblack`).
+increment with red-black SOR (:mod:`processing.solvers.redblack`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from processing import derivatives, lagged, redblack, variational
+from processing.solvers import derivatives, lagged, redblack, variational
 from processing.validation import (
     MIN_IMAGE_SIZE,
     as_float_image,
@@ -68,7 +68,7 @@ def _compact_data_terms(
     beta, eps : float
         Gradient-constancy weight and Charbonnier epsilon.
     coef : ndarray, shape (13, H+2, W2+2), float32
-        Receives A12, R1, R2 (see :mod:`processing.redblack`).
+        Receives A12, R1, R2 (see :mod:`processing.solvers.redblack`).
     a11, a22 : ndarray, shape (H+2, W2+2), float32
         Receive the data diagonals; :func:`redblack.finish_diagonals` adds smoothness.
     """
@@ -141,7 +141,7 @@ def _lagged_iterations(
     inputs ``full`` (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid) are split once into
     ``ins``, psi', edge weights and data terms are computed per colour, and the unknowns
     are merged back only at the end. All compact arrays come from the level's
-    :class:`processing.variational.Workspace`.
+    :class:`processing.solvers.variational.Workspace`.
     """
     w = u.shape[1]
     lagged.begin_warp(full, ins, u, v, us, vs, u0, v0)

@@ -19,14 +19,14 @@ The data terms then read, at the left pixel x = (x, y):
     E3 = I_R(x + u - d - d', y + v, t1) - I_R(x - d, y, t0)        (Eq. 3c)
     E4 = I_R(x + u - d - d', y + v, t1) - I_L(x + u, y + v, t1)    (Eq. 3d)
 
-Numerics are those of the flow solver (:mod:`processing.optical_flow`) and share its
-building blocks: a coarse-to-fine pyramid (:mod:`processing.pyramid`) on which d, d' and w
+Numerics are those of the flow solver (:mod:`processing.flow.brox`) and share its
+building blocks: a coarse-to-fine pyramid (:mod:`processing.solvers.pyramid`) on which d, d' and w
 are resampled with disparities scaled by the width ratio; at each level, outer warps
 re-sample the right images at the current disparities; inner fixed-point iterations
 freeze ("lag") the psi' weights, and the linear system in (d, d') - a 2x2 block per pixel
 plus two diffusion terms with their own weights gamma1 psi'_d and gamma2 psi'_d' - is
-solved with the compact red-black SOR of :mod:`processing.redblack`. Unlike the flow, the
-images are sampled with a Catmull-Rom cubic (:func:`processing.derivatives.
+solved with the compact red-black SOR of :mod:`processing.solvers.redblack`. Unlike the flow, the
+images are sampled with a Catmull-Rom cubic (:func:`processing.solvers.derivatives.
 warp_dx_catmull_rom`): OpenCV's cubic biases fractional shifts by up to 0.04 px, which would
 go straight into d' and hence into V_Z (Eq. 4).
 """
@@ -37,7 +37,8 @@ import cv2
 import numba
 import numpy as np
 
-from processing import derivatives, disparity_terms, lagged, pyramid, redblack, variational
+from processing.solvers import derivatives, lagged, pyramid, redblack, variational
+from processing.stereo import terms as disparity_terms
 from processing.validation import (
     MIN_IMAGE_SIZE,
     as_float_image,
@@ -78,7 +79,7 @@ def constant_mode_step(
     Parameters
     ----------
     coefs : (ndarray, ndarray), shape (13, H+2, W2+2)
-        The colours' systems (planes of :mod:`processing.redblack`; A12, R1, R2 are read).
+        The colours' systems (planes of :mod:`processing.solvers.redblack`; A12, R1, R2 are read).
     a11, a22 : (ndarray, ndarray), shape (H+2, W2+2)
         Data parts of the diagonals.
     ds, ps : (ndarray, ndarray), shape (H+2, W2+2)
@@ -144,12 +145,12 @@ def _lagged_iterations(
 ) -> None:
     """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (d, dp) in place.
 
-    As for the flow (:func:`processing.optical_flow._lagged_iterations`), everything stays
+    As for the flow (:func:`processing.flow.brox._lagged_iterations`), everything stays
     in compact red-black layout for the whole warp: the eight full-grid inputs ``full``
     (e1, e3, e4, g0, g1, m1, m3, m4) are split once into ``ins`` (the data-term kernel is
     purely per pixel, so it runs on compact arrays unchanged), psi', edge weights and data
     terms are computed per colour, and the unknowns are merged back only at the end. All
-    compact arrays come from the level's :class:`processing.variational.Workspace`.
+    compact arrays come from the level's :class:`processing.solvers.variational.Workspace`.
     """
     w = d.shape[1]
     lagged.begin_warp(full, ins, d, dp, ds, ps, d0, dp0)
@@ -198,7 +199,7 @@ def _level_disparity(
     """Refine (d, dp) in place at one pyramid level (outer warps x lagged FP x SOR).
 
     ``usable``: (left, right) float32 maps, 1 where the image carries information, 0 where
-    it was blanked (:func:`processing.disparity_terms.usable_maps`); a data term with a
+    it was blanked (:func:`processing.stereo.terms.usable_maps`); a data term with a
     sample on a blanked pixel is dropped."""
     xx, yy = derivatives.pixel_grid(il0.shape)
     l0x = derivatives.dx(il0)
@@ -262,7 +263,7 @@ def joint_disparity(
         [0, 1] (gamma1, gamma2 are calibrated for that range). H, W >= 8.
     flow : ndarray, shape (H, W, 2), floating point
         Left optical flow w_L = (u, v) in px from t0 to t1 (Eq. 5,
-        :func:`processing.optical_flow.brox_optical_flow`): I_L(x + w, t1) ~ I_L(x, t0).
+        :func:`processing.flow.brox.brox_optical_flow`): I_L(x + w, t1) ~ I_L(x, t0).
     gamma1, gamma2 : float
         Smoothness weights of d and d' (paper: 0.05, 0.5).
     eps : float
@@ -325,7 +326,7 @@ def joint_disparity(
         Pixels of the left and the right view that were blanked to "no change" in both
         differential images (the depth gate's). Data terms that sample them or their
         border are dropped, so d and d' there come from the smoothness terms alone
-        (:func:`processing.disparity_terms.usable_maps`).
+        (:func:`processing.stereo.terms.usable_maps`).
 
     Returns
     -------

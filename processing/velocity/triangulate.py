@@ -3,7 +3,7 @@
 Geometry of the rectified pair (paper Fig. 1): left camera at the origin, X right, Y down,
 Z forward; the right camera at +b along X. A point (X, Y, Z) is seen in the left image at
 x = x0 + s X / Z, y = y0 + s Y / Z and in the right one at x - d with d = s b / Z (the
-sign convention of :mod:`processing.disparity`). Hence
+sign convention of :mod:`processing.stereo.joint`). Hence
 
     X = (x - x0) b / d,   Y = (y - y0) b / d,   Z = s b / d
 
@@ -65,7 +65,7 @@ def surface_position(
     ----------
     d : ndarray, shape (H, W), floating point
         Disparity in px (``x_R = x_L - d``), e.g. from
-        :func:`processing.disparity.joint_disparity`.
+        :func:`processing.stereo.joint.joint_disparity`.
     principal_point : (float, float)
         (x0, y0) of the rectified left image in px.
     camera_constant : float

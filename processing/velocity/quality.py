@@ -6,7 +6,7 @@ U_SF evaluates the energy density of Eq. 6 with the final fields:
            + psi(|E1|^2) + psi(|E3|^2) + psi(|E4|^2)
 
 with the data terms E1, E3, E4 of Eq. 3 in the sign convention of
-:mod:`processing.disparity` (``x_R = x_L - d``), the images warped by Catmull-Rom
+:mod:`processing.stereo.joint` (``x_R = x_L - d``), the images warped by Catmull-Rom
 bicubic interpolation (as in the solver) at the final d, d' and w. Its floor is
 (gamma1 + gamma2 + 3) eps (psi(0) = eps), about 0.0036 at the paper's parameters, so
 exp(-U_SF) <= 1.
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from processing import derivatives
+from processing.solvers import derivatives
 from processing.validation import as_float_image, as_flow_field, check_positive, check_same_shape
 
 
@@ -34,7 +34,7 @@ def _warp(image: np.ndarray, map_x: np.ndarray, map_y: np.ndarray) -> np.ndarray
 
 def _grad_sq(f: np.ndarray) -> np.ndarray:
     # Central differences inside, as the solvers' lagged weights
-    # (processing.redblack.compact_gradient_sq); on the border rows and columns np.gradient
+    # (processing.solvers.redblack.compact_gradient_sq); on the border rows and columns np.gradient
     # is one-sided where the solvers use half of that (Neumann ghost values).
     gy, gx = np.gradient(f)
     return (gx * gx + gy * gy).astype(np.float32)
@@ -62,7 +62,7 @@ def scene_flow_energy(
     flow : ndarray, shape (H, W, 2), floating point
         Left optical flow (u, v) in px.
     d, d_change : ndarray, shape (H, W), floating point
-        Disparity and disparity change in px (:func:`processing.disparity.joint_disparity`).
+        Disparity and disparity change in px (:func:`processing.stereo.joint.joint_disparity`).
     gamma1, gamma2, eps : float
         The weights and Charbonnier epsilon of Eq. 6 (paper: 0.05, 0.5, 0.001).
 

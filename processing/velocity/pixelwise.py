@@ -1,8 +1,9 @@
 """The chain's per-pixel stages in one compiled pass: velocity (Eq. 4), surface position and
 quality U_SF (Eq. 7).
 
-:func:`processing.velocity.scene_flow_velocity`, :func:`processing.velocity.surface_position`
-and :func:`processing.quality.scene_flow_energy` are the readable reference
+:func:`processing.velocity.triangulate.scene_flow_velocity`,
+:func:`processing.velocity.triangulate.surface_position` and
+:func:`processing.velocity.quality.scene_flow_energy` are the readable reference
 implementations (numpy, one whole-image operation per step: about 20 full-size temporaries
 and three separate warps). The live chain calls :func:`velocity_and_quality` instead, which
 reads each input pixel once and writes each output once; ``tests/test_pixelwise.py`` holds
@@ -23,7 +24,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from processing.derivatives import catmull_rom_at
+from processing.solvers.derivatives import catmull_rom_at
 from processing.validation import check_positive
 
 

@@ -1,6 +1,6 @@
-"""What a stereo triple's pre-processing tells about the disturbances of the scene (issue 12).
+"""What a stereo triple's pre-processing tells about the disturbances of the scene.
 
-The per-frame summary carries these as flags (:data:`processing.summary.FLAGS`) so that an
+The per-frame summary carries these as flags (:data:`processing.chain.summary.FLAGS`) so that an
 operator knows when a number is weak: jitter that was measured and removed, jitter that could
 not be measured (no static texture), and a gas signal close to the camera noise.
 """
@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from processing.preprocess import PreprocessedTriple
+from processing.preprocess.differential import PreprocessedTriple
+
+#: Flags of a triple whose data do not fix the constant part of d and d' (see
+#: :func:`processing.stereo.joint.constant_mode_step`).
+UNTRUSTED_FOR_CONSTANT_MODE = frozenset({"registration_rejected", "low_contrast"})
 
 #: A shift below this (px) counts as no jitter for the ``jitter_corrected`` flag.
 JITTER_FLAG_PX = 0.05
@@ -19,7 +23,7 @@ LOW_CONTRAST_RATIO = 6.0
 
 
 def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> list[str]:
-    """Summary flags (:data:`processing.summary.FLAGS`) of a stereo triple's pre-processing.
+    """Summary flags (:data:`processing.chain.summary.FLAGS`) of a stereo triple's pre-processing.
 
     ``registration_rejected``: a jitter estimate was not applied (no static texture);
     ``jitter_corrected``: a shift of at least :data:`JITTER_FLAG_PX` was removed;

@@ -378,7 +378,7 @@ if __name__ == "__main__":
     import sys
 
     if len(sys.argv) != 2 or sys.argv[1].startswith("-"):
-        print("usage: python -m processing.calibration.synthetic OUT_DIR\n"
+        print("usage: python -m processing.calibration.rig OUT_DIR\n"
               "writes rendered stereo views (OUT_DIR/left, OUT_DIR/right) and black-body frames "
               "(OUT_DIR/blackbody) for trying the calibrate commands", file=sys.stderr)
         raise SystemExit(2)

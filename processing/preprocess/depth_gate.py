@@ -11,7 +11,7 @@ The site knows where the gas can be: between Z_near and Z_far, i.e. disparities 
 sgm_num_disparities``). A wall, a tree or a vehicle behind the plume, or a fly in front of the
 lens, lies outside the band. So before any solver runs:
 
-1. semi-global matching (:func:`processing.baselines.sgbm_disparity`, uniqueness and
+1. semi-global matching (:func:`processing.stereo.sgm.sgbm_disparity`, uniqueness and
    left-right checks) of the two t0 differential images over a range wider than the band;
 2. a pixel is *out of band* when SGBM found a reliable disparity outside [d_min - tol,
    d_max + tol] and the pixel is active (its differential value stands out of the noise);
@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from processing.baselines import sgbm_disparity
-from processing.preprocess import PreprocessedTriple
+from processing.preprocess.differential import PreprocessedTriple
+from processing.stereo.sgm import sgbm_disparity
 from processing.validation import as_float_image, check_same_shape
 
 #: Multiple of the robust noise spread above which a differential pixel counts as active.

@@ -1,10 +1,10 @@
 """Per-pixel kernels of the joint disparity solver (paper Eq. 3a, 3c, 3d and Eq. 6).
 
-Separate from :mod:`processing.disparity` (the solver) so that each module keeps one job:
+Separate from :mod:`processing.stereo.joint` (the solver) so that each module keeps one job:
 these kernels evaluate the data terms at the current warp and linearise them, and drop
 the terms that sample blanked pixels; the solver drives the warps, the lagged iterations
 and the pyramid. Sign convention and
-notation as in :mod:`processing.disparity` (``x_R = x_L - d``).
+notation as in :mod:`processing.stereo.joint` (``x_R = x_L - d``).
 """
 
 from __future__ import annotations
@@ -64,13 +64,13 @@ def data_terms(
         Charbonnier epsilon.
     w3 : float
         Weight of E3 (1 in the paper's Eq. 6; see
-        :func:`processing.disparity.joint_disparity`'s ``right_temporal_weight``).
+        :func:`processing.stereo.joint.joint_disparity`'s ``right_temporal_weight``).
     a11, a12, a22, r1, r2 : ndarray, shape (H, W), float32
         Outputs.
     """
     h, w = e1.shape
     # float32 constants: a float64 scalar would promote each pixel's arithmetic to
-    # float64 and halve the SIMD width (see processing.optical_flow).
+    # float64 and halve the SIMD width (see processing.flow.brox).
     e2 = np.float32(eps * eps)
     k3 = np.float32(w3)
     p1 = np.empty(w, np.float32)
@@ -176,7 +176,7 @@ def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
     """Float32 (left, right) maps of one pyramid level: 1 where the image carries
     information, 0 on blanked pixels and within ``margin_px`` (level px) of them.
 
-    Blanked pixels (the depth gate's, :mod:`processing.depth_gate`) hold a constant "no
+    Blanked pixels (the depth gate's, :mod:`processing.preprocess.depth_gate`) hold a constant "no
     change" in both differential images; their border is a static edge that matches with
     w = 0 and d' = 0, and through the smoothness of d' (gamma2) it pulled the gas's d' -
     nearly constant over the image - towards 0 (measured: -0.02 px for -0.22 px, V_Z 0.1

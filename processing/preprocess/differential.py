@@ -5,12 +5,13 @@ Per camera and per triple of consecutive frames (t0, t1, t2), in this order:
 1. radiometric correction: raw counts -> in-band radiance by the camera's characteristic
    curve (:func:`radiometric_correction`), so that both cameras speak the same unit;
 2. rectification with the stereo calibration's maps (:func:`apply_rectification`);
-3. jitter removal: t1 and t2 are registered onto t0 (:mod:`processing.registration`), so both
-   differential images of the triple live on the t0 pixel grid;
+3. jitter removal: t1 and t2 are registered onto t0
+   (:mod:`processing.preprocess.registration`), so both differential images of the triple
+   live on the t0 pixel grid;
 4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units, or,
    when the gas radiance L_g is known, the differential optical depth
    (:func:`differential_image`);
-5. Sobolev denoising of each difference (:mod:`processing.denoise`);
+5. Sobolev denoising of each difference (:mod:`processing.preprocess.denoise`);
 6. normalisation to [0, 1] with one fixed scale shared by both cameras
    (:func:`normalise_difference`).
 
@@ -27,7 +28,7 @@ ambient air temperature, which the anemometer measures). Where |I - L_g| is belo
 ``min_contrast`` the divisor is held at that floor, so noise is not amplified without bound
 where the background has the gas's temperature (the low-contrast case).
 
-Why one shared, slowly varying scale: see :mod:`processing.normalisation`.
+Why one shared, slowly varying scale: see :mod:`processing.preprocess.normalisation`.
 """
 
 from __future__ import annotations
@@ -40,9 +41,13 @@ import cv2
 import numpy as np
 
 from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
-from processing.denoise import sobolev_denoise
-from processing.normalisation import normalise_difference
-from processing.registration import estimate_shift_checked, warp_border_px, warp_translation
+from processing.preprocess.denoise import sobolev_denoise
+from processing.preprocess.normalisation import normalise_difference
+from processing.preprocess.registration import (
+    estimate_shift_checked,
+    warp_border_px,
+    warp_translation,
+)
 from processing.validation import as_float_image, check_positive, check_same_shape
 
 
@@ -188,7 +193,7 @@ class PreprocessedTriple:
     def border_px(self) -> int:
         """Width of the border strip of ``raw0``/``raw1`` (and the diffs) that the
         registration's warps filled with mirrored values rather than measurements, px
-        (:func:`processing.registration.warp_border_px` of t1's and t2's shifts)."""
+        (:func:`processing.preprocess.registration.warp_border_px` of t1's and t2's shifts)."""
         s01, s12 = self.shifts
         return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
 
@@ -222,10 +227,11 @@ def preprocess_camera(
     register : bool
         Remove jitter by registering t1 and t2 onto t0.
     denoise_lambda : float
-        Sobolev prior weight in px^2 (:func:`processing.denoise.sobolev_denoise`); 0 = off.
+        Sobolev prior weight in px^2 (:func:`processing.preprocess.denoise.sobolev_denoise`);
+        0 = off.
     shift01, shift12 : (float, float) or None
         Known shifts of t1 relative to t0 and of t2 relative to t1 (measured by an earlier
-        triple that shared the frames, :class:`processing.temporal.ShiftMemo`; shifts
+        triple that shared the frames, :class:`processing.chain.shifts.ShiftMemo`; shifts
         compose additively); each saves one registration.
     max_shift_px : float
         Largest plausible jitter in px. The registration assumes a static textured

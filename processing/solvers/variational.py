@@ -2,8 +2,8 @@
 
 Both minimise a Charbonnier energy with the numerics of Brox et al. (2004): a pyramid of
 the input images, coarse-to-fine refinement of the unknown fields, and at every level outer
-warps, lagged fixed-point iterations and red-black SOR (:mod:`processing.redblack`,
-:mod:`processing.lagged`). This module holds what the two have in common:
+warps, lagged fixed-point iterations and red-black SOR (:mod:`processing.solvers.redblack`,
+:mod:`processing.solvers.lagged`). This module holds what the two have in common:
 
 - :func:`check_options`: one validation of the numerical options;
 - :func:`build_pyramids`: pre-smoothing and the level shapes, optionally only the finest
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from processing import lagged, pyramid, redblack
+from processing.solvers import lagged, pyramid, redblack
 
 Fields = tuple[np.ndarray, ...]
 LevelSolver = Callable[[int, Fields], Fields]
@@ -49,9 +49,9 @@ class Workspace:
     x1, x2, x1_0, x2_0 : (ndarray, ndarray)
         The two unknowns and their values at the warp (for the increments).
     coefs : (ndarray, ndarray), shape (13, H+2, W2+2) each
-        The linear system (planes of :mod:`processing.redblack`).
+        The linear system (planes of :mod:`processing.solvers.redblack`).
     masks : (ndarray, ndarray), shape (4, H+2, W2+2) each
-        Edge-existence masks (:func:`processing.lagged.border_masks`); constant.
+        Edge-existence masks (:func:`processing.solvers.lagged.border_masks`); constant.
     a11, a22, psi1, psi2 : (ndarray, ndarray)
         Data diagonals and the lagged smoothness weights of the two penalisers.
     s2 : ndarray
@@ -195,7 +195,7 @@ def coarse_to_fine(shapes: Sequence[tuple[int, int]], fields: Fields,
     fields : tuple of ndarray, (h, w) or (h, w, 2), float32
         Initial fields in px, at any size: each is resampled to every level with its
         values scaled to that level's pixels (a 2-D field is horizontal, e.g. a disparity;
-        :func:`processing.pyramid.resize_field`).
+        :func:`processing.solvers.pyramid.resize_field`).
     solve_level : callable (level, fields) -> fields
         Refines the fields at pyramid level ``level`` (0 = finest) and returns them at the
         same shape.

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from processing.level_set import chan_vese_sweeps, region_force
+from processing.segmentation.level_set import chan_vese_sweeps, region_force
 from processing.validation import as_float_image, check_positive
 
 #: Smallest accepted image side in pixels.

@@ -53,18 +53,19 @@ class ChainParameters:
     gas_temperature_k : float or None
         Gas temperature in K (about the ambient air temperature). With radiometric curves
         in the geometry, the differential images become differential optical depth, free of
-        the background's texture (:func:`processing.preprocess.differential_image`); None
-        (or no curves) keeps plain differences.
+        the background's texture
+        (:func:`processing.preprocess.differential.differential_image`); None (or no curves)
+        keeps plain differences.
     min_contrast_k : float
         Floor of the gas-background contrast for that division, in K.
     depth_gate : bool
         Remove moving image regions whose stereo disparity lies outside the gas band
-        [d0, d0 + sgm_num_disparities] before the solvers (:mod:`processing.depth_gate`).
+        [d0, d0 + sgm_num_disparities] before the solvers (:mod:`processing.preprocess.depth_gate`).
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
     temporal_weight : float
         Share a in [0, 1) of the previous triple's d', carried along the flow, in this
-        triple's d' (:mod:`processing.coherence`); 0 uses each triple alone (the paper).
+        triple's d' (:mod:`processing.stereo.coherence`); 0 uses each triple alone (the paper).
         The default 0.7 (memory ~3 frames) halved the triple-to-triple scatter of V_Z on
         the robustness matrix.
     diff_scale : float or None
@@ -75,12 +76,12 @@ class ChainParameters:
         Forgetting factor of the tracked scale (0.02 at 30 Hz ~ 1.7 s memory).
     warm_start : bool
         Start the flow and the disparity from the previous triple's results (needs a
-        state; only when this triple follows it, :mod:`processing.temporal`). The SGM or
+        state; only when this triple follows it, :mod:`processing.chain.state`). The SGM or
         d0 initialisation is then used only on a cold start.
     cold_every : int
         With warm starts on, start every ``cold_every``-th triple of an unbroken warm run
         cold anyway, so that a wrong state does not live longer than that many triples
-        (:func:`processing.temporal.warm_start`); 0 never does. The default 30 (1 s at
+        (:func:`processing.chain.state.warm_start`); 0 never does. The default 30 (1 s at
         30 Hz and stride 1) costs about one cold start per second (+3 % of the chain).
     flow_options, disparity_options, segmentation_options : mapping
         Further keyword arguments of the three solvers (iteration counts, pyramid ...).

@@ -1,0 +1,303 @@
+"""The single entry point of the scene-flow chain (paper Sec. 4, Fig. 2).
+
+:func:`compute_scene_flow` takes three consecutive stereo pairs of raw frames (t0, t1, t2)
+with their capture times, the stereo geometry and the parameters, and returns one
+:class:`SceneFlowResult` with every field, the gas mask, the per-frame summary and the
+time spent in each stage. The daemon's workers, ``ogiflow replay``, the evaluations and
+the benchmarks all call this function, so a number measured in one is the number the
+others produce.
+
+Stages (paper section / equation):
+
+1. pre-processing (4.1): radiometric correction, rectification, jitter registration,
+   differential images I_diff(t0) = I(t0) - I(t1) and I_diff(t1) = I(t1) - I(t2) (Eq. 2),
+   Sobolev denoising, one normalisation to [0, 1] shared by both cameras;
+2. optical flow w_L between the left differential images (4.2, Eq. 5);
+3. initial disparity (SGM or the minimum disparity d0), then joint d_L, d'_L (4.3, Eq. 6);
+4. 3D velocity V and the virtual gas surface (Eq. 4) with dt from the timestamps, and the
+   quality U_SF (Eq. 7), in one compiled pass (:mod:`processing.velocity.pixelwise`);
+5. gas segmentation (4.4, Eq. 9) of the left differential image with the flow;
+6. per-frame summary over the gas region, with c_USF (Eq. 8).
+
+The frame interval of Eq. 4 is the time between the centres of the two differential
+images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timestamps.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from processing.calibration.radiometric import CharacteristicCurve
+from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
+from processing.chain.parameters import ChainParameters
+from processing.chain.result import SceneFlowResult, frame_interval
+from processing.chain.scale import gas_radiance, initial_scale
+from processing.chain.state import ChainState, Times, WarmStart, solver_options
+from processing.chain.summary import summarize_frame
+from processing.flow.brox import brox_optical_flow
+from processing.preprocess.depth_gate import apply_gate, out_of_band_motion
+from processing.preprocess.differential import (
+    PreprocessedTriple,
+    apply_rectification,
+    preprocess_stereo,
+    radiometric_correction,
+    rescale_differences,
+    scale_samples,
+)
+from processing.segmentation.segment import segment_gas
+from processing.stereo.coherence import smooth_disparity_change
+from processing.stereo.joint import joint_disparity
+from processing.stereo.sgm import sgbm_initial_disparity
+from processing.stereo_geometry import Maps, StereoGeometry
+from processing.velocity.pixelwise import velocity_and_quality
+from processing.velocity.quality import c_usf
+
+Pair = tuple[PreprocessedTriple, PreprocessedTriple]
+
+
+def compute_scene_flow(
+    left: Sequence[np.ndarray],
+    right: Sequence[np.ndarray],
+    times_s: Sequence[float],
+    geometry: StereoGeometry,
+    params: ChainParameters | None = None,
+    state: ChainState | None = None,
+) -> SceneFlowResult:
+    """Run the whole chain on three consecutive stereo pairs.
+
+    Parameters
+    ----------
+    left, right : sequence of 3 ndarrays, shape (H, W), uint8/uint16/float
+        Raw frames of the left and right camera at t0, t1, t2.
+    times_s : sequence of 3 floats
+        Capture times of the three pairs in s (e.g. corrected monotonic time / 1e9).
+    geometry : StereoGeometry
+        From the calibration file (or ideal for simulated cameras).
+    params : ChainParameters, optional
+        Defaults to the paper's values.
+    state : ChainState, optional
+        Carried from the previous call of the same stream (:mod:`processing.chain.state`):
+        warm start of w, d and d', frames corrected once, registration shift reuse,
+        tracked normalisation scale; updated in place. The warm start and the shift are
+        used only when this triple follows the previous one by the state's stride.
+
+    Returns
+    -------
+    SceneFlowResult
+
+    Raises
+    ------
+    ValueError
+        Wrong number or size of frames, non-increasing times, bad parameters.
+    """
+    params = params or ChainParameters()
+    _check_frames(left, right, geometry)
+    dt = frame_interval(times_s)
+    times: Times = (float(times_s[0]), float(times_s[1]), float(times_s[2]))
+    stream = state if state is not None else ChainState()
+    clock = _Laps()
+    follows = stream.follows(times)  # before the warm start replaces the previous triple
+
+    fixed = stream.scale_to_use(params.diff_scale)
+    scale = fixed if fixed is not None else initial_scale(left, right, geometry, params)
+    pl, pr = _preprocess(left, right, times, geometry, params, stream, scale)
+    clock.lap("preprocess")
+    flags: list[str] = []
+    blanked = None
+    if params.depth_gate:
+        pl, pr, blanked = _depth_gate(pl, pr, params, flags)
+        clock.lap("depth_gate")
+    flags.extend(preprocess_flags(pl, pr))
+    (pl, pr), scale, measured, target = _settle_scale(pl, pr, stream, scale, fixed is None)
+    cut = stream.scene_change(target)
+    if cut:
+        flags.append("scene_change")
+    warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
+
+    flow = brox_optical_flow(
+        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
+        initial_flow=None if warm is None else warm.flow,
+        **solver_options(params.flow_options, params.warm_flow_options, warm is not None))
+    clock.lap("flow")
+    init = _initial_disparity(pl, pr, params, warm)
+    clock.lap("disparity_init")
+    d, dd = _disparity(pl, pr, flow, init, params, warm is not None, flags, blanked,
+                       stream.change_history(follows))
+    clock.lap("disparity")
+    seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
+    clock.lap("segmentation")
+    # Velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF only
+    # on the gas, the region c_USF (Eq. 8) averages it over.
+    velocity, position, valid, u_sf, u_sf_valid = velocity_and_quality(
+        flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
+        principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
+        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2,
+        quality_mask=seg.mask)
+    clock.lap("velocity_quality")
+    quality = c_usf(u_sf, seg.mask, valid & u_sf_valid)
+    summary = summarize_frame(velocity, valid, seg.mask, quality, tuple(flags))
+    clock.lap("summary")
+
+    stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
+                  forgetting=params.scale_forgetting, measured=measured, target=target,
+                  scene_change=cut, flow=flow, disparity=d, change=dd)
+    return SceneFlowResult(
+        times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
+        flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
+        valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=seg.mask, phi=seg.phi,
+        summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
+        rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
+        warm=warm is not None,
+    )
+
+
+@dataclass
+class _Laps:
+    """Wall time per stage in ms, each lap from the end of the previous one."""
+
+    timings: dict[str, float] = field(default_factory=dict)
+    start: float = field(default_factory=time.perf_counter)
+    last: float = 0.0
+
+    def __post_init__(self) -> None:
+        self.last = self.start
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.timings[name] = (now - self.last) * 1e3
+        self.last = now
+
+    def total(self) -> dict[str, float]:
+        self.timings["total"] = (time.perf_counter() - self.start) * 1e3
+        return self.timings
+
+
+def _check_frames(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
+                  geometry: StereoGeometry) -> None:
+    if len(left) != 3 or len(right) != 3:
+        raise ValueError(f"need 3 left and 3 right frames, got {len(left)} and {len(right)}")
+    w, h = geometry.image_size
+    for side, frames in (("left", left), ("right", right)):
+        for i, f in enumerate(frames):
+            shape = getattr(f, "shape", None)
+            if shape != (h, w):
+                raise ValueError(
+                    f"{side} frame t{i} has shape {shape}, the calibration expects {(h, w)}"
+                )
+
+
+def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None
+             ) -> np.ndarray:
+    """Radiometric correction and rectification of one raw frame."""
+    img = radiometric_correction(frame, curve)
+    return img if maps is None else apply_rectification(img, maps[0], maps[1])
+
+
+def _preprocess(left: Sequence[np.ndarray], right: Sequence[np.ndarray], times: Times,
+                geometry: StereoGeometry, params: ChainParameters, stream: ChainState,
+                scale: float) -> Pair:
+    """Stage 1 (Sec. 4.1) for both cameras, each raw frame corrected only once per stream."""
+    known = stream.known_shifts(times)
+    lg, contrast_floor = gas_radiance(params, geometry)
+    # The corrected frames then go through pre-processing as they are (no curve, no maps).
+    corrected = [
+        stream.corrected_frames(cam, frames, times,
+                                lambda f, curve=curve, maps=maps: _correct(f, curve, maps))
+        for cam, (frames, curve, maps) in enumerate((
+            (left, geometry.curve_left, geometry.maps_left),
+            (right, geometry.curve_right, geometry.maps_right)))
+    ]
+    pl, pr = preprocess_stereo(
+        corrected[0], corrected[1], scale=scale, register=params.register,
+        denoise_lambda=params.denoise_lambda,
+        shift01=tuple(k[0][0] if k[0] else None for k in known),  # type: ignore[arg-type]
+        shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
+        max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
+    )
+    pl, pr = stream.remember_shifts(times, known, (pl, pr))
+    return pl, pr
+
+
+def _depth_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, params: ChainParameters,
+                flags: list[str]
+                ) -> tuple[PreprocessedTriple, PreprocessedTriple,
+                           tuple[np.ndarray, np.ndarray] | None]:
+    """Blank what moves outside the gas's disparity band; the blanked masks, or None."""
+    gate = out_of_band_motion(pl.diff0, pr.diff0, d_min=params.d0,
+                              d_max=params.d0 + params.sgm_num_disparities,
+                              dilate_px=params.max_motion_px)
+    if gate.fraction <= 0:
+        return pl, pr, None
+    flags.append("object_motion_rejected")
+    pl, pr = apply_gate(pl, pr, gate)
+    return pl, pr, (gate.left, gate.right)
+
+
+def _settle_scale(pl: PreprocessedTriple, pr: PreprocessedTriple, stream: ChainState,
+                  scale: float, first: bool
+                  ) -> tuple[Pair, float, list[np.ndarray], float | None]:
+    """The triple's raw differences without the registration's border strips (on a textured
+    background their mirrored values differ by far more than any gas), the target scale they
+    ask for, and, for a ``first`` scale, the differences rescaled to it.
+
+    A first scale comes from the unregistered first pair, with a textured background's
+    jitter and any warm object in it (measured: 2.1x the gas's own under 0.3 px jitter, 15x
+    with the object); it is taken again from what the solvers see: registered, gated,
+    without the border strips, and is also the first target of the tracker.
+    """
+    measured = scale_samples(pl, pr)
+    target = stream.scale_target(measured, first)
+    if first and target is not None and 0 < target < scale:
+        pl, pr = rescale_differences(pl, scale / target), rescale_differences(pr, scale / target)
+        scale = target
+    return (pl, pr), scale, measured, target
+
+
+def _initial_disparity(pl: PreprocessedTriple, pr: PreprocessedTriple,
+                       params: ChainParameters, warm: WarmStart | None
+                       ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The joint solver's start (d_L, d'_L): the previous triple's, an SGM estimate, or none
+    (the constant d0)."""
+    if warm is not None:
+        # The fields of the same scene one triple earlier are far closer than any SGM
+        # estimate on differential images, and cost nothing.
+        return warm.disparity, warm.change
+    if params.disparity_init == "sgm":
+        # The search starts at d0: a range below the gas's disparity leaves SGM nothing to
+        # find, and the joint solver, started far off, does not converge (d' bias).
+        return sgbm_initial_disparity(pl.diff0, pr.diff0,
+                                      min_disparity=int(np.floor(params.d0)),
+                                      num_disparities=params.sgm_num_disparities,
+                                      fallback=params.d0), None
+    return None, None
+
+
+def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
+               init: tuple[np.ndarray | None, np.ndarray | None], params: ChainParameters,
+               warm: bool, flags: Sequence[str],
+               blanked: tuple[np.ndarray, np.ndarray] | None,
+               history: tuple[np.ndarray | None, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 3 (Sec. 4.3, Eq. 6): d_L and d'_L given the flow, then d' made coherent with the
+    previous triple's along the gas's paths."""
+    options = solver_options(params.disparity_options, params.warm_disparity_options, warm)
+    if UNTRUSTED_FOR_CONSTANT_MODE.intersection(flags):
+        # Left-over jitter differs between the cameras and noise without gas contrast has
+        # its own minimum: both are a constant d' offset, which the constant-mode step
+        # would fit (measured: V_Z 20-60 m/s with a rejected 0.5 px shift, 2-4 m/s on a
+        # 3 K plume under 0.03 K noise). The plain solver keeps d' near its start there.
+        options["constant_mode"] = False
+    d, dd = joint_disparity(
+        pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow, gamma1=params.gamma1,
+        gamma2=params.gamma2, d0=params.d0, initial_disparity=init[0],
+        initial_change=init[1], blanked=blanked, **options)
+    if params.temporal_weight > 0:
+        # At stride 2 the previous triple is two frames back, so the paths are twice the
+        # flow.
+        previous, steps = history
+        assert steps in (1, 2)
+        dd = smooth_disparity_change(dd, previous, flow * steps, params.temporal_weight)
+    return d, dd

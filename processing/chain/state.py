@@ -1,0 +1,268 @@
+"""Temporal reuse between triples of one stream: what a chain call leaves for the next.
+
+Consecutive triples (t0, t1, t2), (t1, t2, t3) share two frames and one differential image,
+and the gas moves little from one triple to the next. The live chain exploits both:
+
+- the previous triple's flow w_L and disparities d_L, d'_L start the solvers (a *warm
+  start*) on fewer pyramid levels and iterations (``ChainParameters.warm_flow_options``,
+  ``warm_disparity_options``) instead of SGM and a full pyramid;
+- each raw frame is radiometrically corrected and rectified once, not once per triple it
+  belongs to (:attr:`ChainState.frames`, keyed by camera and capture time);
+- the registration shift between two consecutive frames of a camera is estimated once
+  (:mod:`processing.chain.shifts`);
+- the normalisation scale is tracked across triples; the first one of a stream is taken
+  again from the registered, gated differences; a triple whose differences ask for far more
+  than the tracked scale is a scene change and starts cold.
+
+:class:`ChainState` owns this life cycle; :func:`processing.chain.compute_scene_flow` asks it
+at each step what to do.
+
+The differential image D(t1, t2) of one triple is D(t0, t1) of the next only on the same
+pixel grid: :mod:`processing.preprocess.differential` registers t1 and t2 onto t0, so the
+next triple needs it on the t1 grid. Re-using it would save one subtraction, one warp and one
+denoising per camera (about 2 % of a warm triple, measured) at the price of an
+interpolation; it is not done.
+
+A warm start is taken only when this triple follows the previous one of the same
+:class:`ChainState` exactly ``stride`` frames later, as proved by the shared capture times
+(stride 1: (t1, t2) of the previous are (t0, t1) of this one; stride 2: t2 of the previous
+is t0 of this one). Anything else - a dropped frame, a restart, a reordered or repeated
+triple - is a cold start: full pyramid and the configured initial disparity. With two
+workers taking every other triple (the daemon), each worker's state has stride 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from processing.chain.shifts import KnownShift, LocalShiftMemo, ShiftMemo
+from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile
+
+#: Strides whose succession the shared capture times can prove (see the module docstring).
+STRIDES = (1, 2)
+
+#: A triple whose differential images ask for this many times the tracked normalisation
+#: scale is a scene change, not gas motion (measured: the simulated scene's loop jump asked
+#: for 4-9x, consecutive gas frames for 0.6-1.5x).
+SCENE_CHANGE_FACTOR = 3.0
+
+Times = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class WarmStart:
+    """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px."""
+
+    flow: np.ndarray
+    disparity: np.ndarray
+    change: np.ndarray
+
+
+@dataclass
+class ChainState:
+    """What one call leaves for the next call on the following triple of the same stream.
+
+    The daemon keeps one per worker; offline evaluation may pass None to the chain, which
+    then uses a fresh state that it throws away (every triple cold).
+
+    Attributes
+    ----------
+    stride : int
+        Frames between the first frames of two triples this state sees in succession: 1
+        when one process handles every triple, 2 when two workers alternate.
+    scale : DiffScaleTracker or None
+        Tracked normalisation scale of the differential images.
+    previous_flow, previous_disparity, previous_change : ndarray or None
+        w_L (H, W, 2), d_L and d'_L (H, W) of the previous triple, px.
+    previous_times : (float, float, float) or None
+        Capture times of the previous triple, s.
+    shifts : ShiftMemo
+        Registration shifts already estimated (this process's, or shared between workers).
+    shifts_reused : int
+        How many shifts came from ``shifts`` instead of being estimated.
+    warm_starts, cold_starts : int
+        How many calls started warm and cold (for the benchmark and the tests).
+    warm_run : int
+        Warm starts since the last cold start (for ``ChainParameters.cold_every``).
+    frames : dict
+        Corrected and rectified frames of the last triple by (camera, capture time), camera
+        0 = left, 1 = right (:meth:`corrected_frames`).
+    frames_reused : int
+        How many frames came from ``frames`` instead of being corrected again.
+    """
+
+    stride: int = 1
+    scale: DiffScaleTracker | None = None
+    previous_flow: np.ndarray | None = None
+    previous_disparity: np.ndarray | None = None
+    previous_change: np.ndarray | None = None
+    previous_times: Times | None = None
+    shifts: ShiftMemo = field(default_factory=LocalShiftMemo)
+    shifts_reused: int = 0
+    warm_starts: int = 0
+    cold_starts: int = 0
+    warm_run: int = 0
+    frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
+    frames_reused: int = 0
+
+    def __post_init__(self) -> None:
+        if self.stride not in STRIDES:
+            raise ValueError(f"stride must be one of {STRIDES}, got {self.stride!r}")
+
+    def follows(self, times: Times) -> bool:
+        """True when ``times`` is the triple ``stride`` frames after the previous one."""
+        prev = self.previous_times
+        if prev is None:
+            return False
+        if self.stride == 1:
+            return prev[1:] == times[:2]
+        return prev[2] == times[0]
+
+    def reset(self) -> None:
+        """Forget the previous triple (the next call starts cold); keeps the scale."""
+        self.previous_flow = self.previous_disparity = self.previous_change = None
+        self.previous_times = None
+        self.frames.clear()
+
+    # -- normalisation scale -------------------------------------------------------------
+
+    def scale_to_use(self, fixed: float | None) -> float | None:
+        """This triple's normalisation scale: ``fixed``, else the tracked one, else None
+        (a first scale must be taken from the triple itself)."""
+        if fixed is not None:
+            return fixed
+        return None if self.scale is None else self.scale.scale
+
+    def scale_target(self, measured: Sequence[np.ndarray], first: bool) -> float | None:
+        """The scale this triple's raw differences ask for (once: the scene-change test and
+        the tracker use it); for a ``first`` scale, the quantile the tracker starts from."""
+        if first:
+            return pooled_quantile(measured)
+        return None if self.scale is None else self.scale.target(*measured)
+
+    def scene_change(self, target: float | None) -> bool:
+        """Whether the whole picture changed at once in this triple.
+
+        A flat-field shutter, a bumped camera or a jump of the scene makes both differential
+        images of a triple far stronger than gas ever does. A warm start would carry that
+        triple's fields into the next ones (measured: four triples after the simulated
+        scene's loop jump at 4-19 m/s against 1.3 m/s true), so it starts cold and leaves
+        nothing to warm from. Needs a tracked scale (a state after its first triple).
+        """
+        if self.scale is None or target is None:
+            return False
+        return target > SCENE_CHANGE_FACTOR * self.scale.scale
+
+    # -- warm start ----------------------------------------------------------------------
+
+    def warm_start(self, times: Times, enabled: bool, cold_every: int = 0,
+                   scene_change: bool = False) -> WarmStart | None:
+        """The warm start for a triple at ``times``, or None when it must start cold.
+
+        ``cold_every`` > 0 makes every ``cold_every``-th triple of an unbroken warm run start
+        cold anyway: a warm start cannot leave a wrong state (a d' pinned by a warm object in
+        the first triple stayed wrong for the whole run, measured), a cold start can, so the
+        restarts bound how long an error lives. A scene change always starts cold. Counts
+        the decision in ``warm_starts`` / ``cold_starts``.
+        """
+        if scene_change:
+            self.cold_starts += 1
+            return None
+        ok = (enabled and self.follows(times) and self.previous_flow is not None
+              and self.previous_disparity is not None and self.previous_change is not None
+              and not (cold_every > 0 and self.warm_run + 1 >= cold_every))
+        if not ok:
+            self.cold_starts += 1
+            self.warm_run = 0
+            return None
+        self.warm_starts += 1
+        self.warm_run += 1
+        assert self.previous_flow is not None and self.previous_disparity is not None
+        assert self.previous_change is not None
+        return WarmStart(self.previous_flow, self.previous_disparity, self.previous_change)
+
+    def change_history(self, follows: bool) -> tuple[np.ndarray | None, int]:
+        """The previous triple's d'_L (None unless this triple ``follows`` it) and the frames
+        between the two triples (the stride), for the temporal coherence of d'."""
+        return (self.previous_change if follows else None), self.stride
+
+    # -- frames and shifts ---------------------------------------------------------------
+
+    def known_shifts(self, times: Times) -> tuple[tuple[KnownShift | None, KnownShift | None],
+                                                  ...]:
+        """Per camera (left, right): the t0 -> t1 and t1 -> t2 shifts already in the memo."""
+        out = tuple((self.shifts.get(cam, times[0], times[1]),
+                     self.shifts.get(cam, times[1], times[2])) for cam in (0, 1))
+        self.shifts_reused += sum(k is not None for pair in out for k in pair)
+        return out
+
+    def remember_shifts(self, times: Times, known: Sequence[Sequence[KnownShift | None]],
+                        estimated: Sequence[PreprocessedTriple]) -> list[PreprocessedTriple]:
+        """Put the shifts this triple estimated into the memo; return the two cameras'
+        pre-processing results with the known shifts' rejections counted too (a triple is
+        flagged the same whether it estimated a shift or took it from the memo)."""
+        out = []
+        for cam, (pre, pair) in enumerate(zip(estimated, known, strict=True)):
+            rejected = list(pre.rejected)
+            for k, hit in enumerate(pair):
+                if hit is not None:
+                    rejected[k] = hit[1]
+                else:
+                    self.shifts.put(cam, times[k], times[k + 1], pre.shifts[k],
+                                    pre.rejected[k])
+            out.append(dataclasses.replace(pre, rejected_shifts=sum(rejected),
+                                           rejected=(rejected[0], rejected[1])))
+        return out
+
+    def corrected_frames(self, camera: int, raw: Sequence[np.ndarray], times: Times,
+                         correct: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:
+        """``correct`` applied to the three raw frames of one camera, each frame only once.
+
+        Frames of this camera seen in the previous call (same capture time) come from
+        ``frames``; afterwards the cache holds exactly this triple's frames.
+        """
+        out = []
+        for f, t in zip(raw, times, strict=True):
+            img = self.frames.get((camera, t))
+            if img is None:
+                img = correct(f)
+            else:
+                self.frames_reused += 1
+            out.append(img)
+        for key in [k for k in self.frames if k[0] == camera]:
+            del self.frames[key]
+        self.frames.update({(camera, t): img for t, img in zip(times, out, strict=True)})
+        return out
+
+    # -- end of a triple -----------------------------------------------------------------
+
+    def finish(self, *, times: Times, scale: float, fixed_scale: float | None,
+               forgetting: float, measured: Sequence[np.ndarray], target: float | None,
+               scene_change: bool, flow: np.ndarray, disparity: np.ndarray,
+               change: np.ndarray) -> None:
+        """Leave this triple for the next: the tracked scale moves towards ``target``; the
+        fields are kept for a warm start unless the triple was a scene change (then the
+        next triple starts cold too: these fields are not gas)."""
+        if fixed_scale is None:
+            if self.scale is None:
+                self.scale = DiffScaleTracker(scale, forgetting=forgetting)
+            self.scale.update(*measured, target=target)
+        if scene_change:
+            self.reset()
+            return
+        self.previous_flow = flow
+        self.previous_disparity = disparity
+        self.previous_change = change
+        self.previous_times = times
+
+
+def solver_options(base: Mapping[str, Any], warm: Mapping[str, Any],
+                   is_warm: bool) -> dict[str, Any]:
+    """Keyword arguments of one solver: ``base``, overridden by ``warm`` on a warm start."""
+    return {**base, **warm} if is_warm else dict(base)

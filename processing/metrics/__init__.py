@@ -1,0 +1,1 @@
+"""Evaluation (Sec. 5): metrics (Eq. 10), flow metrics, .flo files, decoupled baselines."""
