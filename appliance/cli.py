@@ -98,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ogiflow`` console script; returns the process exit code."""
-    from appliance.runtime.tuning import keep_freed_memory
+    from appliance.memory import keep_freed_memory
 
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -29,7 +29,7 @@ def test_freed_memory_is_returned_to_the_kernel() -> None:
     code = """
 import os
 import numpy as np
-from appliance.runtime.tuning import keep_freed_memory, release_freed_memory
+from appliance.memory import keep_freed_memory, release_freed_memory
 def rss_mb():
     return int(open('/proc/self/statm').read().split()[1]) * os.sysconf('SC_PAGE_SIZE') / 1e6
 assert keep_freed_memory()

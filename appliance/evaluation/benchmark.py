@@ -52,10 +52,10 @@ STAGES: tuple[str, ...] = (
 
 def single_thread() -> None:
     """Set a process up as the appliance's workers are: OpenCV and numba on one thread (the
-    targets are per core) and glibc's allocator tuned (:mod:`appliance.runtime.tuning`)."""
+    targets are per core) and glibc's allocator tuned (:mod:`appliance.memory`)."""
     import cv2
 
-    from appliance.runtime.tuning import keep_freed_memory
+    from appliance.memory import keep_freed_memory
 
     keep_freed_memory()
     cv2.setNumThreads(1)

@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from appliance.runtime.tuning import with_mimalloc_purge
+from appliance.memory import with_mimalloc_purge
 
 __all__ = ["LiveViewError", "ViewerServer", "check_port_free", "start_viewer_server"]
 

@@ -42,7 +42,7 @@ from appliance.live.blueprint import blueprint
 from appliance.live.items import LiveFrame, LiveScalars, LiveStats, health_scalars
 from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
 from appliance.live.status import OperatorStatus
-from appliance.runtime.tuning import with_mimalloc_purge
+from appliance.memory import with_mimalloc_purge
 
 __all__ = [
     "LiveFrame",

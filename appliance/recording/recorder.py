@@ -44,6 +44,7 @@ from appliance.recording.files import (
     new_path,
     unfinished_files,
 )
+from appliance.recording.recovery import recover_unfinished
 from appliance.recording.schemas import MessageSchema
 
 __all__ = [
@@ -350,8 +351,6 @@ class Recorder:
         return True
 
     def _recover_cut_files(self) -> None:
-        from appliance.recording.recovery import recover_unfinished
-
         reports = recover_unfinished(self._dir)
         lost = sum(self._cut.pop(r.source, r.messages_kept) - r.messages_kept for r in reports)
         with self._lock:

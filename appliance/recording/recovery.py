@@ -11,6 +11,7 @@ writes them into a new file with a full summary (chunk and message indexes, stat
 from __future__ import annotations
 
 import io
+import logging
 import os
 import struct
 import zlib
@@ -22,9 +23,12 @@ import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, Chunk, Header, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import CompressionType, Writer
+
+from appliance.recording.files import unfinished_files
 
 __all__ = ["MAGIC", "RecoveryReport", "default_output", "recover", "recover_unfinished"]
 
@@ -268,12 +272,6 @@ def recover_unfinished(directory: str | Path, *, remove_source: bool = True
         One per recovered file, oldest first. A file that cannot be recovered is left in place
         and logged; it does not stop the others.
     """
-    import logging
-
-    from mcap.reader import make_reader
-
-    from appliance.recording.recorder import unfinished_files
-
     log = logging.getLogger("ogiflow.recovery")
     reports = []
     for path in unfinished_files(Path(directory)):

@@ -36,12 +36,12 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
+from appliance.memory import PeriodicTrim
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.tuning import PeriodicTrim
 from appliance.runtime.workers import WorkerResult, emission_setup
 from processing.chain import ChainParameters, StereoGeometry
 

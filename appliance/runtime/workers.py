@@ -270,9 +270,9 @@ def worker_main(
         the live view); the worker that packs the next result sends them and clears it.
         None: every result carries them.
     """
+    from appliance.memory import PeriodicTrim, keep_freed_memory
     from appliance.runtime.ring import PairRing
     from appliance.runtime.shiftshare import SharedShiftMemo
-    from appliance.runtime.tuning import PeriodicTrim, keep_freed_memory
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()

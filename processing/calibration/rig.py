@@ -16,11 +16,13 @@ to uint16 or uint8 counts.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
-from processing.calibration.pattern import PatternSpec
+from processing.calibration.pattern import PatternSpec, object_points
+from processing.calibration.radiometric import band_radiance, celsius_to_kelvin
 
 
 @dataclass(frozen=True)
@@ -256,7 +258,6 @@ def random_target_poses(
     list of (rvec, tvec)
         Target-to-left-camera poses, Rodrigues vector and metres.
     """
-    from processing.calibration.pattern import object_points
 
     obj = object_points(spec)
     centre = obj.mean(axis=0)
@@ -349,10 +350,6 @@ def write_demo_data(out_dir: str, views: int = 14, seed: int = 0) -> None:
     right}/tNN/``: five 16-bit frames per black-body temperature 20, 35, 50, 65, 80 degC
     (left: gain 45000 counts per W m^-2 sr^-1, offset 12000 counts; right: 50000, 9000).
     """
-    from pathlib import Path
-
-    from processing.calibration.radiometric import band_radiance, celsius_to_kelvin
-
     root = Path(out_dir)
     rig = example_rig()
     spec = PatternSpec("chessboard", 6, 9, 0.05)

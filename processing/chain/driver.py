@@ -59,14 +59,10 @@ from processing.velocity.quality import c_usf
 Pair = tuple[PreprocessedTriple, PreprocessedTriple]
 
 
-def compute_scene_flow(
-    left: Sequence[np.ndarray],
-    right: Sequence[np.ndarray],
-    times_s: Sequence[float],
-    geometry: StereoGeometry,
-    params: ChainParameters | None = None,
-    state: ChainState | None = None,
-) -> SceneFlowResult:
+def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
+                       times_s: Sequence[float], geometry: StereoGeometry,
+                       params: ChainParameters | None = None,
+                       state: ChainState | None = None) -> SceneFlowResult:
     """Run the whole chain on three consecutive stereo pairs.
 
     Parameters
@@ -74,16 +70,14 @@ def compute_scene_flow(
     left, right : sequence of 3 ndarrays, shape (H, W), uint8/uint16/float
         Raw frames of the left and right camera at t0, t1, t2.
     times_s : sequence of 3 floats
-        Capture times of the three pairs in s (e.g. corrected monotonic time / 1e9).
+        Capture times of the three pairs in s (any common origin).
     geometry : StereoGeometry
         From the calibration file (or ideal for simulated cameras).
     params : ChainParameters, optional
         Defaults to the paper's values.
     state : ChainState, optional
-        Carried from the previous call of the same stream (:mod:`processing.chain.state`):
-        warm start of w, d and d', frames corrected once, registration shift reuse,
-        tracked normalisation scale; updated in place. The warm start and the shift are
-        used only when this triple follows the previous one by the state's stride.
+        Carried from the previous call of the same stream and updated in place
+        (:mod:`processing.chain.state`); None: every triple on its own.
 
     Returns
     -------
@@ -114,14 +108,10 @@ def compute_scene_flow(
     flags.extend(preprocess_flags(pl, pr))
     (pl, pr), scale, measured, target = _settle_scale(pl, pr, stream, scale, fixed is None)
     cut = stream.scene_change(target)
-    if cut:
-        flags.append("scene_change")
+    flags.extend(["scene_change"] if cut else [])
     warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
 
-    flow = brox_optical_flow(
-        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
-        initial_flow=None if warm is None else warm.flow,
-        **solver_options(params.flow_options, params.warm_flow_options, warm is not None))
+    flow = _flow(pl, params, warm)
     clock.lap("flow")
     init = _initial_disparity(pl, pr, params, warm)
     clock.lap("disparity_init")
@@ -130,16 +120,11 @@ def compute_scene_flow(
     clock.lap("disparity")
     seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
     clock.lap("segmentation")
-    # Velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF only
-    # on the gas, the region c_USF (Eq. 8) averages it over.
-    velocity, position, valid, u_sf, u_sf_valid = velocity_and_quality(
-        flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
-        principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
-        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2,
-        quality_mask=seg.mask)
+    velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, seg.mask,
+                                                            geometry, params, dt)
     clock.lap("velocity_quality")
-    quality = c_usf(u_sf, seg.mask, valid & u_sf_valid)
-    summary = summarize_frame(velocity, valid, seg.mask, quality, tuple(flags))
+    summary = summarize_frame(velocity, valid, seg.mask, c_usf(u_sf, seg.mask, valid & u_sf_valid),
+                              tuple(flags))
     clock.lap("summary")
 
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
@@ -257,6 +242,15 @@ def _settle_scale(pl: PreprocessedTriple, pr: PreprocessedTriple, stream: ChainS
     return (pl, pr), scale, measured, target
 
 
+def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None
+          ) -> np.ndarray:
+    """Stage 2 (Sec. 4.2, Eq. 5): w_L between the left differential images, (H, W, 2) px."""
+    return brox_optical_flow(
+        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
+        initial_flow=None if warm is None else warm.flow,
+        **solver_options(params.flow_options, params.warm_flow_options, warm is not None))
+
+
 def _initial_disparity(pl: PreprocessedTriple, pr: PreprocessedTriple,
                        params: ChainParameters, warm: WarmStart | None
                        ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -301,3 +295,15 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
         assert steps in (1, 2)
         dd = smooth_disparity_change(dd, previous, flow * steps, params.temporal_weight)
     return d, dd
+
+
+def _velocity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray, d: np.ndarray,
+              dd: np.ndarray, gas: np.ndarray, geometry: StereoGeometry,
+              params: ChainParameters, dt: float) -> tuple[np.ndarray, ...]:
+    """Stage 4: velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF
+    only on the ``gas`` mask, the region c_USF (Eq. 8) averages it over."""
+    return velocity_and_quality(
+        flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
+        principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
+        baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2,
+        quality_mask=gas)

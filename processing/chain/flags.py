@@ -12,7 +12,7 @@ import numpy as np
 from processing.preprocess.differential import PreprocessedTriple
 
 #: Flags of a triple whose data do not fix the constant part of d and d' (see
-#: :func:`processing.stereo.joint.constant_mode_step`).
+#: :func:`processing.stereo.constant_mode.constant_mode_step`).
 UNTRUSTED_FOR_CONSTANT_MODE = frozenset({"registration_rejected", "low_contrast"})
 
 #: A shift below this (px) counts as no jitter for the ``jitter_corrected`` flag.

@@ -39,6 +39,7 @@ import numpy as np
 
 from processing.solvers import derivatives, lagged, pyramid, redblack, variational
 from processing.stereo import terms as disparity_terms
+from processing.stereo.constant_mode import constant_mode_step
 from processing.validation import (
     MIN_IMAGE_SIZE,
     as_float_image,
@@ -46,75 +47,6 @@ from processing.validation import (
     check_positive,
     check_same_shape,
 )
-
-#: Largest offset of d or d' in one constant-mode step, px (of the level).
-MAX_CONSTANT_STEP_PX = 0.5
-
-
-@numba.njit(cache=True, fastmath=True)
-def constant_mode_step(
-    coefs: tuple[np.ndarray, np.ndarray],
-    a11: tuple[np.ndarray, np.ndarray],
-    a22: tuple[np.ndarray, np.ndarray],
-    ds: tuple[np.ndarray, np.ndarray],
-    ps: tuple[np.ndarray, np.ndarray],
-) -> None:
-    """Add to d and d' the constant offsets that minimise the lagged quadratic energy.
-
-    The smoothness terms of Eq. 6 do not change when a constant is added to d or d', so
-    over those two directions the linearised energy is the data terms' alone, and its
-    minimum is the solution of the 2x2 system of the summed equations::
-
-        [sum A11  sum A12] [delta_d ]   [sum (r1 - A11 d - A12 d')]
-        [sum A12  sum A22] [delta_d'] = [sum (r2 - A12 d - A22 d')]
-
-    (the edge weights are symmetric, so the diffusion parts of the equations sum to zero).
-    Red-black SOR removes that error mode slowest of all: d' is stiffly smooth (gamma2
-    psi' reaches gamma2 / eps) and constrained by data only on the gas, so the field kept
-    much of its starting value (measured on a field scene: -0.28, -0.31, -0.34 px from
-    starts 0, -0.28, -0.5; on a plane textured over a tenth of the image 0.77 px for
-    1.19 px). d and d' are shifted together: a d' step alone, with d off by a pixel where
-    the gas's texture was blanked, moved d' the wrong way.
-
-    Parameters
-    ----------
-    coefs : (ndarray, ndarray), shape (13, H+2, W2+2)
-        The colours' systems (planes of :mod:`processing.solvers.redblack`; A12, R1, R2 are read).
-    a11, a22 : (ndarray, ndarray), shape (H+2, W2+2)
-        Data parts of the diagonals.
-    ds, ps : (ndarray, ndarray), shape (H+2, W2+2)
-        d and d' in compact layout, updated in place (interior only; the halo stays 0).
-    """
-    s11 = s12 = s22 = b1 = b2 = 0.0
-    for c in range(2):
-        coef = coefs[c]
-        h = coef.shape[1] - 1
-        w = coef.shape[2] - 1
-        for y in range(1, h):
-            ra11, ra22, dv, pv = a11[c][y], a22[c][y], ds[c][y], ps[c][y]
-            ra12, rr1, rr2 = coef[redblack.A12, y], coef[redblack.R1, y], coef[redblack.R2, y]
-            for x in range(1, w):
-                s11 += ra11[x]
-                s12 += ra12[x]
-                s22 += ra22[x]
-                b1 += rr1[x] - ra11[x] * dv[x] - ra12[x] * pv[x]
-                b2 += rr2[x] - ra12[x] * dv[x] - ra22[x] * pv[x]
-    det = s11 * s22 - s12 * s12
-    if s11 <= 0.0 or s22 <= 0.0 or det <= 1e-3 * s11 * s22:
-        return  # no data at all, or d and d' not separable: nothing to fix
-    # No further than the linearisation holds (the data terms are linear in d, d' about
-    # the warp only within about a pixel); a far minimum is reached over several steps.
-    delta_d = min(max((s22 * b1 - s12 * b2) / det, -MAX_CONSTANT_STEP_PX), MAX_CONSTANT_STEP_PX)
-    delta_p = min(max((s11 * b2 - s12 * b1) / det, -MAX_CONSTANT_STEP_PX), MAX_CONSTANT_STEP_PX)
-    fd = np.float32(delta_d)
-    fp = np.float32(delta_p)
-    for c in range(2):
-        h = ds[c].shape[0] - 1
-        w = ds[c].shape[1] - 1
-        for y in range(1, h):
-            for x in range(1, w):
-                ds[c][y, x] += fd
-                ps[c][y, x] += fp
 
 
 @numba.njit(cache=True)
@@ -289,23 +221,16 @@ def joint_disparity(
         finest.
     n_inner : int
         Inner fixed-point iterations per warp (lagged psi' weights), except at the finest
-        level. The coarse levels make the large corrections (the whole d - d0 and d'),
-        and one linearisation per level was not enough there: on a textured plane
-        receding at 1.5 m/s, started 22 px short (d0 = 60 px), 1 x 5 iterations per level
-        left a d' bias of 0.24 px, 2 x 3 left 0.02 px.
+        level: the coarse levels make the large corrections (the whole d - d0 and d'),
+        where one linearisation per level is not enough (docs/solver-choices.md).
     n_warps_finest, n_inner_finest : int
-        The same at the finest level, where only a fraction of a pixel remains: 1 x 4
-        instead of 2 x 3 raised the d' bias in that case from 0.022 to 0.028 px (<= 0.009
-        px on 9 other moving planes) and saves about a fifth of the run time.
+        The same at the finest level, where only a fraction of a pixel remains.
     n_sor : int
         Red-black SOR iterations per inner iteration.
     omega : float
         SOR relaxation factor in (0, 2). Higher than the flow solver's 1.8: the lagged
-        smoothness weights gamma psi' reach gamma / eps (500 for d' at the paper's
-        values) where a field is flat, which makes the system stiff and its smooth error
-        modes slow; the optimal SOR factor of such a Laplacian-dominated system is close
-        to 2 (1.95 cut the d' bias on a moving textured plane from 0.43 px to 0.02 px at
-        equal cost).
+        smoothness weights gamma psi' reach gamma / eps where a field is flat, a stiff,
+        Laplacian-dominated system whose optimal SOR factor is close to 2.
     presmooth_sigma : float
         Gaussian pre-smoothing of the four images in px (0 disables).
     constant_mode : bool
@@ -318,10 +243,7 @@ def joint_disparity(
         >= 0; 1 is the paper's Eq. 6. E3 is the only term through which an error of the
         given flow reaches d' (its residual vanishes where d' takes up the flow's
         horizontal error; E1 and E4 measure d and d + d' directly), but it is also what
-        keeps d' off the background's 0 where the gas is seen against texture. Measured
-        with 0 instead of 1: Table 3's AEMV 9.7 / 7.9 / 5.9 -> 1.2 / 5.3 / 2.9 deg, but
-        the field matrix's out-of-plane scenes read V_Z a third lower (ideal: worst scene
-        15.2 -> 23.2 %, "all realistic" AEMV 17.6 -> 32.5 deg), so the paper's 1 stays.
+        keeps d' off the background's 0 where the gas is seen against texture.
     blanked : (ndarray, ndarray), shape (H, W), bool, optional
         Pixels of the left and the right view that were blanked to "no change" in both
         differential images (the depth gate's). Data terms that sample them or their
@@ -348,51 +270,20 @@ def joint_disparity(
     J. Rangel, R. Schmoll, A. Kroll, "On scene flow computation of gas structures with
     optical gas imaging cameras", WACV 2020, Eq. 3, 6.
     """
-    images = [
-        as_float_image(a, n, min_size=MIN_IMAGE_SIZE)
-        for a, n in ((il0, "il0"), (ir0, "ir0"), (il1, "il1"), (ir1, "ir1"))
-    ]
-    for img, name in zip(images[1:], ("ir0", "il1", "ir1"), strict=True):
-        check_same_shape(images[0], img, "il0", name)
-    shape = images[0].shape
-    w_full = as_flow_field(flow, shape, "flow")
-    check_positive(gamma1, "gamma1")
-    check_positive(gamma2, "gamma2")
-    check_positive(right_temporal_weight, "right_temporal_weight", allow_zero=True)
-    if not np.isfinite(float(d0)):
-        raise ValueError(f"d0 must be a finite number of pixels, got {d0!r}")
+    images, w_full, init = _checked_inputs(
+        (il0, ir0, il1, ir1), flow, initial_disparity, blanked, gamma1=gamma1, gamma2=gamma2,
+        right_temporal_weight=right_temporal_weight, d0=d0)
     variational.check_options(eps=eps, pyramid_factor=pyramid_factor, omega=omega,
                               presmooth_sigma=presmooth_sigma, n_levels=n_levels,
                               n_warps=n_warps, n_inner=n_inner, n_sor=n_sor,
                               n_warps_finest=n_warps_finest, n_inner_finest=n_inner_finest,
                               min_level_size=min_level_size)
-    if blanked is not None:
-        for b, name in zip(blanked, ("blanked left", "blanked right"), strict=True):
-            if np.shape(b) != shape:
-                raise ValueError(f"{name}: shape {np.shape(b)}, expected {shape}")
-    init = None
-    if initial_disparity is not None:
-        init = as_float_image(initial_disparity, "initial_disparity")
-        check_same_shape(images[0], init, "il0", "initial_disparity")
+    shape = images[0].shape
     shapes, pyrs = variational.build_pyramids(
         images, pyramid_factor=pyramid_factor, min_level_size=min_level_size,
         presmooth_sigma=presmooth_sigma, n_levels=n_levels)
 
-    coarsest = shapes[-1]
-    if init is None:
-        d = np.full(coarsest, np.float32(d0) * np.float32(coarsest[1] / shape[1]), np.float32)
-    elif coarsest == shape:
-        d = init.copy()
-    else:
-        # Area averaging, not point sampling: an SGM estimate carries speckles and filled
-        # holes that a bilinear sample of a few pixels would pass on to the coarsest level.
-        d = cv2.resize(init, (coarsest[1], coarsest[0]), interpolation=cv2.INTER_AREA)
-        d = np.ascontiguousarray(d * np.float32(coarsest[1] / shape[1]), dtype=np.float32)
-    if initial_change is None:
-        dp = np.zeros(coarsest, np.float32)
-    else:
-        dp = as_float_image(initial_change, "initial_change")
-        check_same_shape(images[0], dp, "il0", "initial_change")
+    d, dp = _initial_fields(images[0], shapes[-1], d0, init, initial_change)
 
     def solve_level(level: int, fields: variational.Fields) -> variational.Fields:
         lshape = shapes[level]
@@ -411,4 +302,57 @@ def joint_disparity(
         return dl, dpl
 
     d, dp = variational.coarse_to_fine(shapes, (d, dp), solve_level)
+    return d, dp
+
+
+def _checked_inputs(frames: tuple[np.ndarray, ...], flow: np.ndarray,
+                    initial_disparity: np.ndarray | None,
+                    blanked: tuple[np.ndarray, np.ndarray] | None, *, gamma1: float,
+                    gamma2: float, right_temporal_weight: float, d0: float
+                    ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray | None]:
+    """The four images as float32, the flow and the initial disparity, checked."""
+    images = [
+        as_float_image(a, n, min_size=MIN_IMAGE_SIZE)
+        for a, n in zip(frames, ("il0", "ir0", "il1", "ir1"), strict=True)
+    ]
+    for img, name in zip(images[1:], ("ir0", "il1", "ir1"), strict=True):
+        check_same_shape(images[0], img, "il0", name)
+    shape = images[0].shape
+    w_full = as_flow_field(flow, shape, "flow")
+    check_positive(gamma1, "gamma1")
+    check_positive(gamma2, "gamma2")
+    check_positive(right_temporal_weight, "right_temporal_weight", allow_zero=True)
+    if not np.isfinite(float(d0)):
+        raise ValueError(f"d0 must be a finite number of pixels, got {d0!r}")
+    if blanked is not None:
+        for b, name in zip(blanked, ("blanked left", "blanked right"), strict=True):
+            if np.shape(b) != shape:
+                raise ValueError(f"{name}: shape {np.shape(b)}, expected {shape}")
+    init = None
+    if initial_disparity is not None:
+        init = as_float_image(initial_disparity, "initial_disparity")
+        check_same_shape(images[0], init, "il0", "initial_disparity")
+    return images, w_full, init
+
+
+def _initial_fields(il0: np.ndarray, coarsest: tuple[int, int], d0: float,
+                    init: np.ndarray | None, initial_change: np.ndarray | None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """d and d' to start from: the constant d0 or the given disparity at the coarsest level
+    (scaled by the width ratio), the given d' or 0."""
+    shape = il0.shape
+    if init is None:
+        d = np.full(coarsest, np.float32(d0) * np.float32(coarsest[1] / shape[1]), np.float32)
+    elif coarsest == shape:
+        d = init.copy()
+    else:
+        # Area averaging, not point sampling: an SGM estimate carries speckles and filled
+        # holes that a bilinear sample of a few pixels would pass on to the coarsest level.
+        d = cv2.resize(init, (coarsest[1], coarsest[0]), interpolation=cv2.INTER_AREA)
+        d = np.ascontiguousarray(d * np.float32(coarsest[1] / shape[1]), dtype=np.float32)
+    if initial_change is None:
+        dp = np.zeros(coarsest, np.float32)
+    else:
+        dp = as_float_image(initial_change, "initial_change")
+        check_same_shape(il0, dp, "il0", "initial_change")
     return d, dp

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from processing.synthetic.advection import advect_all, advect_scalar, diffuse_jacobi
+from processing.synthetic.fluid_state import FluidState
 from processing.synthetic.projection import project
 
 #: Standard gravity, m/s^2.
@@ -149,31 +150,6 @@ class FluidParams:
                 raise ValueError("source radius must be > 0 and release rate >= 0")
             if s.release_correlation_s < 0:
                 raise ValueError("release_correlation_s must be >= 0")
-
-
-@dataclass
-class FluidState:
-    """The fields advanced by :func:`step` (see module docstring for shapes and units)."""
-
-    u: np.ndarray
-    v: np.ndarray
-    w: np.ndarray
-    c: np.ndarray
-    t_s: float = 0.0
-
-    def cell_velocity(self) -> np.ndarray:
-        """Cell-centred velocity, float64 (3, nz, ny, nx), components (X, Y, Z) in m/s."""
-        return np.stack(
-            (
-                0.5 * (self.u[:, :, 1:] + self.u[:, :, :-1]),
-                0.5 * (self.v[:, 1:, :] + self.v[:, :-1, :]),
-                0.5 * (self.w[1:, :, :] + self.w[:-1, :, :]),
-            )
-        )
-
-    def total_mass_kg(self, voxel_m: float) -> float:
-        """Total gas mass in the volume in kg."""
-        return float(self.c.sum() * voxel_m**3)
 
 
 def initial_state(params: FluidParams) -> FluidState:

@@ -5,14 +5,11 @@ field made divergence-free by solving the Poisson equation exactly with discrete
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numba
 import numpy as np
 import scipy.fft
 
-if TYPE_CHECKING:
-    from processing.synthetic.fluid import FluidState
+from processing.synthetic.fluid_state import FluidState
 
 
 @numba.njit(cache=True)
