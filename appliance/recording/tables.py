@@ -75,15 +75,6 @@ def wind_row(topic: str, m: Mapping[str, Any]) -> dict[str, Any]:
             "z_m_s": v[2], "speed_m_s": m.get("speed_m_s"), "status": None}
 
 
-def read_summaries(path: Path) -> tuple[list[dict[str, Any]], bool]:
-    """Summary rows of a log in file order, and whether the file was cut short."""
-    from appliance.recording.reader import iter_json
-
-    reader, messages = iter_json(path, ["/sceneflow/summary"])
-    rows = [summary_row(m) for _topic, m in messages]
-    return rows, reader.truncated
-
-
 def to_arrow(rows: Sequence[Mapping[str, Any]], columns: Iterable[str]) -> Any:
     """A ``pyarrow.Table`` of ``rows``: ``columns`` first, then any other keys rows have.
 

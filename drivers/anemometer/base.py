@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import bisect
 import math
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 
 
 @dataclass(frozen=True, slots=True)
@@ -274,16 +273,3 @@ class Anemometer(ABC):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-
-@dataclass(slots=True)
-class _Deadline:
-    """A monotonic deadline (survives wall-clock jumps, like pyserial's ``Timeout``)."""
-
-    seconds: float
-    start: float = field(default_factory=time.monotonic)
-
-    def remaining(self) -> float:
-        return max(0.0, self.start + self.seconds - time.monotonic())
-
-    def expired(self) -> bool:
-        return time.monotonic() >= self.start + self.seconds

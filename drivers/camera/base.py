@@ -142,15 +142,6 @@ class CameraStats:
     skipped: int = 0  # unreadable or malformed inputs a replay/file back end skipped
 
 
-def mono_format_for(image: np.ndarray) -> str:
-    """Return the natural pixel format name for an image's dtype (``Mono8``/``Mono16``)."""
-    if image.dtype == np.uint8:
-        return "Mono8"
-    if image.dtype == np.uint16:
-        return "Mono16"
-    raise ValueError(f"images must be uint8 or uint16, got {image.dtype}")
-
-
 class Camera(abc.ABC):
     """Base class of every camera back end.
 

@@ -293,13 +293,7 @@ def segmentation_ratio(segmented: np.ndarray, reference: np.ndarray) -> float | 
         In %, >= 0 (above 100 when the segmentation is larger); None when the reference
         region is empty.
     """
-    seg = np.asarray(segmented)
-    ref = _check_mask(reference, seg.shape, "reference")
-    seg = _check_mask(seg, ref.shape, "segmented")
-    n_ref = int(np.count_nonzero(ref))
-    if n_ref == 0:
-        return None
-    return 100.0 * int(np.count_nonzero(seg)) / n_ref
+    return _share_of_reference(segmented, reference, overlap_only=False)
 
 
 def segmentation_overlap(segmented: np.ndarray, reference: np.ndarray) -> float | None:
@@ -307,10 +301,17 @@ def segmentation_overlap(segmented: np.ndarray, reference: np.ndarray) -> float 
 
     100 % |Omega_g ∩ Omega*| / |Omega*|; None when the reference region is empty.
     """
+    return _share_of_reference(segmented, reference, overlap_only=True)
+
+
+def _share_of_reference(segmented: np.ndarray, reference: np.ndarray, *,
+                        overlap_only: bool) -> float | None:
+    """100 % |Omega_g| / |Omega*| (or |Omega_g ∩ Omega*| / |Omega*|); None for an empty
+    reference."""
     seg = np.asarray(segmented)
     ref = _check_mask(reference, seg.shape, "reference")
     seg = _check_mask(seg, ref.shape, "segmented")
     n_ref = int(np.count_nonzero(ref))
     if n_ref == 0:
         return None
-    return 100.0 * int(np.count_nonzero(seg & ref)) / n_ref
+    return 100.0 * int(np.count_nonzero(seg & ref if overlap_only else seg)) / n_ref

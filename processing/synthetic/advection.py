@@ -11,20 +11,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from processing.synthetic.grid import cell_and_fraction
+
 
 @numba.njit(cache=True, inline="always")
 def _trilinear(a: np.ndarray, fz: float, fy: float, fx: float) -> float:
     """Trilinear sample of ``a`` at array index coordinates, clamped to the array."""
     nz, ny, nx = a.shape
-    fz = min(max(fz, 0.0), nz - 1.0)
-    fy = min(max(fy, 0.0), ny - 1.0)
-    fx = min(max(fx, 0.0), nx - 1.0)
-    k = min(int(fz), nz - 2)
-    j = min(int(fy), ny - 2)
-    i = min(int(fx), nx - 2)
-    tz = fz - k
-    ty = fy - j
-    tx = fx - i
+    k, tz = cell_and_fraction(fz, nz)
+    j, ty = cell_and_fraction(fy, ny)
+    i, tx = cell_and_fraction(fx, nx)
     c00 = a[k, j, i] * (1 - tx) + a[k, j, i + 1] * tx
     c01 = a[k, j + 1, i] * (1 - tx) + a[k, j + 1, i + 1] * tx
     c10 = a[k + 1, j, i] * (1 - tx) + a[k + 1, j, i + 1] * tx

@@ -37,6 +37,7 @@ from processing.synthetic.geometry import (  # noqa: F401 (re-exported, as above
     project_points,
     ray_directions,
 )
+from processing.synthetic.grid import cell_and_fraction
 
 # The radiometry and camera-effect part of rendering lives in imaging; its names are
 # re-exported here because a renderer's users reach for them together with the geometry.
@@ -156,15 +157,9 @@ def _march(
                 gx = (cam_vol[0] + t * dirs[y, x, 0]) / h - 0.5
                 gy = (cam_vol[1] + t * dirs[y, x, 1]) / h - 0.5
                 gz = (cam_vol[2] + t * dirs[y, x, 2]) / h - 0.5
-                gx = min(max(gx, 0.0), nx - 1.0)
-                gy = min(max(gy, 0.0), ny - 1.0)
-                gz = min(max(gz, 0.0), nz - 1.0)
-                i = min(int(gx), nx - 2)
-                j = min(int(gy), ny - 2)
-                k = min(int(gz), nz - 2)
-                tx = gx - i
-                ty = gy - j
-                tz = gz - k
+                i, tx = cell_and_fraction(gx, nx)
+                j, ty = cell_and_fraction(gy, ny)
+                k, tz = cell_and_fraction(gz, nz)
                 w000 = (1 - tx) * (1 - ty) * (1 - tz)
                 w001 = tx * (1 - ty) * (1 - tz)
                 w010 = (1 - tx) * ty * (1 - tz)
