@@ -1,4 +1,4 @@
-"""Process exit codes of every ``ogiflow`` command and of the service (also in the README).
+"""Process exit codes of every ``ogiflow`` command and of the service (also in docs/operation.md).
 
 systemd restarts the service on any failure except a configuration error
 (``RestartPreventExitStatus=2``): a wrong key does not fix itself, a runtime fault may.

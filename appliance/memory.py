@@ -12,13 +12,13 @@ thresholds makes the fast case the normal one. Freed memory then stays in the pr
 
 Still needed after the solvers moved to preallocated workspaces
 (:mod:`processing.solvers.variational`): without these settings a warm triple of the chain still
-took 3700 minor page faults and 8 ms of system time (measured, issue 15), from the
+took 3700 minor page faults and 8 ms of system time (measured), from the
 full-size numpy and OpenCV temporaries around the solvers.
 
 The price is that the process's resident memory is the high-water mark of its heap: a
 burst (a cold start's full pyramid, results queued while the daemon was starved of CPU)
 stayed resident for the rest of the run, measured as steps of 130-160 MB in the workers of
-the session-4 soak. :func:`release_freed_memory`, called by the workers once a minute,
+a one-hour soak. :func:`release_freed_memory`, called by the workers once a minute,
 returns what is free to the kernel; the next triple faults its pages in again (a few
 milliseconds once a minute).
 """
@@ -43,7 +43,7 @@ _M_MMAP_THRESHOLD = -3
 #: server, returns a freed page to the kernel only once the thread that owns it allocates
 #: again after ``purge_delay`` (1000 ms in v3): not a timer, so memory freed after a burst
 #: by a thread that then idles stays resident. A browser on the live view is such a burst
-#: (the server reads slowly, the SDK holds the stream meanwhile): in the session-7 soak
+#: (the server reads slowly, the SDK holds the stream meanwhile): in a one-hour soak
 #: the daemon's mimalloc arenas grew from 9 to 76 MB over an 8-minute browser session and
 #: kept 72 MB after it, the second browser added 10 MB more. With purging at free time the
 #: same 8 minutes took them from 9 to 63 MB and back to 9 MB when the browser left; the

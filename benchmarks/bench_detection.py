@@ -1,4 +1,4 @@
-"""Detection delay and false alarms of the leak-event logic on the simulated site (issue 14).
+"""Detection delay and false alarms of the leak-event logic on the simulated site.
 
 Two measurements with the daemon's chain and event logic (``appliance.evaluation.detection``:
 ``compute_scene_flow`` -> ``EvidenceStream`` -> ``LeakDetector``, default ``events`` config),

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python -m benchmarks.bench_flow [--runs N]``
 
 Prints the median ms per frame pair of our flow (default parameters) and, measured in
 the same run, OpenCV Farneback and DIS medium (all on one thread), with the ratios.
-Target (issue 2): median <= 30 ms on one core of the reference machine.
+Target: median <= 30 ms on one core of the reference machine.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Stereo pairing accuracy and cost over simulated time (issue 6 acceptance).
+"""Stereo pairing accuracy and cost over simulated time.
 
 Two simulated cameras (not triggered together, different latency, jitter, clock offset and
 drift, dropped frames) are driven on a virtual clock - no sleeping - through the real code

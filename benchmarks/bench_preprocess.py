@@ -15,7 +15,7 @@ textured gas blob plus sensor noise (counts-like, ~12 bit). Stages timed (median
 - ``segment_gas``: the level set (Eq. 9) on I_diff and a flow field;
 - ``farneback``: OpenCV Farneback flow on the same pair, as a yardstick measured in the same
   run (the ratio column divides by it).
-Targets (issue 3): the whole chain <= 100 ms per stereo pair, of which pre-processing of two
+Targets: the whole chain <= 100 ms per stereo pair, of which pre-processing of two
 cameras and segmentation should take a small part (a few ms each).
 """
 

@@ -18,7 +18,8 @@ parameters). Then, on the same files and with the same segmenting:
 
 All are timed as whole commands (start-up, planning and merging included) and their
 summaries are checked to be identical. Prints triples/s of each, the speed-up, and the
-measured cost of one segment (from the manifest), which the README's scaling estimate uses.
+measured cost of one segment (from the manifest), which the scaling estimate of
+docs/reprocessing.md uses.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Benchmark of the synthetic data generator (issue 4; target: three sequences < 5 min).
+"""Benchmark of the synthetic data generator (target: three sequences < 5 min).
 
 Run from the repository root::
 

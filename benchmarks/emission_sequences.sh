@@ -1,5 +1,5 @@
 #!/bin/sh
-# The simulated sequences of the emission-rate acceptance (issue 13), then the evaluation.
+# The simulated sequences of the emission-rate acceptance, then the evaluation.
 #
 #   benchmarks/emission_sequences.sh OUT [PYTHON]
 #

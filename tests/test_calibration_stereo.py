@@ -1,6 +1,6 @@
 """Stereo calibration recovers a known stereo model from rendered IR target images.
 
-Acceptance (issue 8): focal length within 0.5 %, baseline within 1 %, reprojection RMS
+Acceptance: focal length within 0.5 %, baseline within 1 %, reprojection RMS
 below 0.3 px, from 14 views at 320x240 with lens distortion, IR-like low and uneven
 contrast, noise, inverted polarity and mixed 8/16-bit images.
 """

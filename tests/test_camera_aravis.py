@@ -1,4 +1,4 @@
-"""Aravis back end against two of Aravis' own fake GigE Vision cameras (issue 6 acceptance).
+"""Aravis back end against two of Aravis' own fake GigE Vision cameras.
 
 Needs the Debian packages ``aravis-tools`` (``arv-fake-gv-camera-0.8``) and
 ``gir1.2-aravis-0.8`` plus PyGObject (the ``gige`` extra); ``tools/install.sh --dev``

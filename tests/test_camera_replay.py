@@ -1,4 +1,4 @@
-"""Replay back ends: image folders and video files through the camera interface (issue 6)."""
+"""Replay back ends: image folders and video files through the camera interface."""
 
 from __future__ import annotations
 

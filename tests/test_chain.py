@@ -1,4 +1,4 @@
-"""The single entry point of the scene-flow chain (issue 3, item 8)."""
+"""The single entry point of the scene-flow chain."""
 
 from __future__ import annotations
 

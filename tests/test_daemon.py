@@ -151,7 +151,7 @@ def test_measured_gas_velocity_follows_the_simulated_truth(recorded: dict) -> No
     comparison = recorded["app"].publisher.truth_comparison()
     assert comparison is not None and comparison["frames"] > 5
     # Coarse test scene and a few seconds only: a loose bound; the 120 s acceptance run
-    # with the default scene is reported in the README.
+    # with the default scene is in docs/accuracy.md.
     assert comparison["magnitude_error_pct"] < 30
     assert comparison["direction_error_deg"] < 30
 
@@ -190,8 +190,8 @@ def test_replay_reprocesses_every_triple_and_export_writes_csv(recorded: dict,
 def test_summaries_carry_the_emission_rate_and_its_truth(recorded: dict) -> None:
     """Every summary of the simulated run has the frame's and the window's rate (g/s and
     kg/h, or null with a reason) and the simulator's true release; the end comparison
-    exists. Coarse test scene, a few seconds: only a loose bound on the value (the README
-    reports the 100 s run of the default configuration)."""
+    exists. Coarse test scene, a few seconds: only a loose bound on the value (docs/accuracy.md
+    reports the 120 s run of the default configuration)."""
     from appliance.recording.reader import iter_json
 
     _r, msgs = iter_json(recorded["files"][0], ["/sceneflow/summary"])

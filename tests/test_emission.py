@@ -133,7 +133,7 @@ def test_placement_finds_the_source_and_orients_curtains_downstream() -> None:
 
 
 def test_placement_leaves_out_the_first_fifth_of_the_plume() -> None:
-    """The flow reads the young plume near its source too fast (README, eval emission):
+    """The flow reads the young plume near its source too fast (docs/accuracy.md, emission rate):
     by default no curtain lies in the first 20 % of the plume's length."""
     gas, flow = _plume_mask()  # x = 40 .. 280
     xs = np.nonzero(gas)[1]
@@ -343,7 +343,7 @@ def test_estimator_background_is_not_learnt_from_a_plumes_faint_edge() -> None:
 def test_v_z_enters_a_curtain_flux_only_through_the_depth_at_t1() -> None:
     """On a curtain of viewing rays V . n = Z1 f (w . n) / s with Z1 = s b / (d + d'):
     a d' that changes V_Z by metres per second changes the rate by d / (d + d') only
-    (README, "What the rate takes from the scene flow"), even far off the optical axis."""
+    (docs/method.md, "What the rate takes from the scene flow"), even far off the optical axis."""
     from processing.velocity.triangulate import scene_flow_velocity
 
     b, dt, d = 0.3, 1 / 30, 40.0

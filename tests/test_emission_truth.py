@@ -1,4 +1,4 @@
-"""Emission ground truth of the simulator (issue 13): the time-correlated release, the true
+"""Emission ground truth of the simulator: the time-correlated release, the true
 release rate and the exact curtain flux from the flux moment, and the background fill."""
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Each test runs :class:`Appliance` in this thread while a controller thread injects one fault
 and stops the run once the appliance has come back (bounded waits on counters, never fixed
-sleeps for the outcome). Printed figures (``-s``) are the ones in the README.
+sleeps for the outcome). Printed figures (``-s``) are the ones in docs/operation.md.
 """
 
 from __future__ import annotations
@@ -221,7 +221,7 @@ def test_wall_clock_step_does_not_touch_pairing(scene_cache: Path, tmp_path: Pat
     assert [p["pair_index"] for p in pairs] == list(range(len(pairs)))
     assert max(steps) < 0.2e9 and min(steps) > 0
     assert c.frames_lost == {"left": 0, "right": 0}
-    # One frame may be cut off when the cameras start a few ms apart (the CI run of session 4
+    # One frame may be cut off when the cameras start a few ms apart (a CI run
     # had one); across the step itself no frame may lose its partner.
     assert unpaired["after"] == unpaired["before"]
     assert sum(unpaired["before"].values()) <= 1

@@ -1,4 +1,4 @@
-"""Field disturbances (issue 12): moving objects are not gas; jitter is registered on texture."""
+"""Field disturbances: moving objects are not gas; jitter is registered on texture."""
 
 from __future__ import annotations
 

@@ -8,7 +8,7 @@ with tesseract OCR: the viewer draws everything on a canvas, so there is no DOM 
 the IR picture is not blank. Needs the Debian packages ``chromium`` and ``tesseract-ocr``
 and playwright from PyPI (``tools/install.sh --dev``); missing ones fail the test.
 
-``OGIFLOW_SCREENSHOT=PATH`` also writes the final screenshot there (the README's picture).
+``OGIFLOW_SCREENSHOT=PATH`` also writes the final screenshot there (the picture in README.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 6 acceptance: pairing of the simulated stereo pair over 10 minutes of simulated time.
+"""Acceptance: pairing of the simulated stereo pair over 10 minutes of simulated time.
 
 Drives the real camera -> clock -> pairer path on a virtual clock (no sleeping); see
 benchmarks/bench_pairing.py, which prints the full figures.

@@ -107,7 +107,7 @@ def test_every_topic_has_a_schema() -> None:
 
 
 def test_rerun_mcap_import_reads_our_files(tmp_path: Path) -> None:
-    """`rerun mcap convert` turns our Foxglove images into Rerun images (DESIGN.md)."""
+    """`rerun mcap convert` turns our Foxglove images into Rerun images (docs/design.md)."""
     rc = dataclasses.replace(RecordingConfig(), dir=tmp_path / "rec", quota_gb=None)
     rec = Recorder(rc, file_metadata(Config())).start()
     rng = np.random.default_rng(0)

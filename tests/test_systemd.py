@@ -88,7 +88,7 @@ def exposure(unit: Path) -> float:
 
 
 def test_exposure_score_is_at_most_2(tmp_path: Path) -> None:
-    """The hardening keeps the unit at <= 2.0 (issue 16); it was 3.5 before."""
+    """The hardening keeps the unit at <= 2.0."""
     assert exposure(UNIT) <= 2.0
     weakened = tmp_path / "ogiflow.service"
     text = UNIT.read_text()

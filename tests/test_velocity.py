@@ -93,7 +93,7 @@ def test_bad_input_raises(kwargs: dict, message: str) -> None:
 def test_moving_plane_velocity_within_5_percent_and_3_degrees(
     z0: float, velocity: tuple[float, float, float], seed: int
 ) -> None:
-    """Issue 3 acceptance: textured plane at Z ~ 2 m (d ~ 78-82 px) moving with a known V,
+    """Acceptance: textured plane at Z ~ 2 m (d ~ 78-82 px) moving with a known V,
     s = 780 px, b = 0.2 m, 320x240, 30 Hz; w from our Brox flow, d and d' from Eq. 6
     initialised with the minimum disparity d0 = 60 px (Z <= 2.6 m)."""
     scene = moving_plane(z0=z0, velocity=velocity, seed=seed)

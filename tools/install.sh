@@ -14,7 +14,7 @@ cluster=0
 
 apt_packages=(python3-venv python3-dev)
 if [ "$dev" = 1 ]; then
-    # Tests (issue-specific packages are added here).
+    # Tests (the system packages a test needs are added here).
     # systemd: `systemd-analyze verify` lints the unit file.
     # Cameras: Aravis library + typelib, its fake GigE Vision camera, what PyGObject (the
     # gige extra, built from source) compiles against; iproute2 (ip) for the fake cameras'

@@ -1,4 +1,4 @@
-"""``ogiflow bench``: speed of the whole scene-flow chain at 320x240 (issue 3 item 10).
+"""``ogiflow bench``: speed of the whole scene-flow chain at 320x240.
 
 See :mod:`appliance.evaluation.benchmark` for what is measured and on which input.
 """

@@ -1,4 +1,4 @@
-"""``ogiflow eval robustness``: scene-flow accuracy under field disturbances (issue 12).
+"""``ogiflow eval robustness``: scene-flow accuracy under field disturbances.
 
 A thin argparse layer over :mod:`appliance.evaluation.robustness`.
 """

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from appliance import cli
 
-#: Default folder of the sequences: where the README's ``ogiflow simulate --out synthetic``
+#: Default folder of the sequences: where docs/accuracy.md's ``ogiflow simulate --out synthetic``
 #: writes them (relative to the working directory). Generated data, so not under ``data/``,
 #: which holds real reference recordings with provenance.
 DEFAULT_DATA = Path("synthetic")
@@ -50,7 +50,7 @@ def register(root: argparse._SubParsersAction) -> None:
                    help="initial disparity of the joint solver: an SGM estimate (default) or "
                         "the constant minimum disparity --d0 (with the solver's default "
                         "iterations, a start ~17 px short leaves a d' bias of ~0.09 px, "
-                        "i.e. V_Z errors of ~2 m/s at 1 ms frames; see README)")
+                        "i.e. V_Z errors of ~2 m/s at 1 ms frames; see docs/accuracy.md)")
     p.add_argument("--d0", type=float, default=60.0,
                    help="minimum disparity in px for the farthest expected gas, s*b/Z_max "
                         "(default 60 = 780 px * 0.2 m / 2.6 m): start of the SGM search "

@@ -1,4 +1,4 @@
-"""``ogiflow simulate``: generate synthetic stereo OGI sequences with ground truth (issue 4).
+"""``ogiflow simulate``: generate synthetic stereo OGI sequences with ground truth.
 
 Writes one directory per sequence in the ``ogiflow-synthetic/1`` format (see
 :mod:`processing.synthetic.storage`); by default the three Table-2-like sequences.

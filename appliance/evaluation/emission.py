@@ -53,7 +53,7 @@ from processing.synthetic.volume_exit import sequence_plume_exit
 Log = Callable[[str], None]
 #: Name of the calibration file ``ogiflow simulate`` writes beside the frames.
 CALIBRATION_NAME = "calibration.yaml"
-#: Acceptance (issue 13): every sequence within 20 %, median within 10 %.
+#: Acceptance targets: every sequence within 20 %, median within 10 %.
 TARGET_WORST, TARGET_MEDIAN = 0.20, 0.10
 
 

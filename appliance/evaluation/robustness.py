@@ -1,4 +1,4 @@
-"""Core of ``ogiflow eval robustness``: scene-flow accuracy under field disturbances (issue 12).
+"""Core of ``ogiflow eval robustness``: scene-flow accuracy under field disturbances.
 
 The matrix crosses *scenes* (one fluid simulation each: a seed, a wind, a release rate;
 the appliance's ``field`` geometry, plume 5.5 m away, b = 0.3 m, 30 Hz) with *conditions*
@@ -9,8 +9,8 @@ gas-background temperature difference). Each scene's gas is simulated once and c
 (:class:`processing.synthetic.cameras.StereoRenderer`) and runs the chain on every triple
 (:func:`appliance.evaluation.sceneflow.evaluate_frames`, proposed method only).
 
-:data:`DEFAULT_MATRIX` is the named matrix the README's table comes from. A condition is
-``realistic`` when its strengths lie within the issue's acceptance set (NETD <= 0.03 K,
+:data:`DEFAULT_MATRIX` is the named matrix docs/accuracy.md's table comes from. A condition is
+``realistic`` when its strengths lie within the acceptance set (NETD <= 0.03 K,
 jitter <= 0.3 px, calibrated gain, one moving warm object, a textured plant background);
 :func:`acceptance` checks those against the targets (mean RMVE and AEMV <= 12 % / 12 deg
 per condition, no scene worse than 20 % / 20 deg).
@@ -148,7 +148,7 @@ QUICK_MATRIX = Matrix(
 
 #: The acceptance set on seeds the chain was never tuned on: every realistic condition of
 #: :data:`DEFAULT_MATRIX` over four other seeds and the same two winds (8 scenes). The
-#: default matrix's seeds 7 and 11 guided every change since issue 12 opened; this one
+#: default matrix's seeds 7 and 11 guided the chain's tuning; this one
 #: tells whether its numbers hold beyond them.
 HOLDOUT_MATRIX = Matrix(
     name="holdout",
@@ -170,7 +170,7 @@ MATRICES = {m.name: m for m in (DEFAULT_MATRIX, QUICK_MATRIX, HOLDOUT_MATRIX)}
 FIELD_DISPARITY_OPTIONS: dict[str, int] = {"n_warps": 3, "n_inner": 4, "n_inner_finest": 6,
                                            "n_sor": 15}
 
-#: Acceptance targets over the realistic conditions (issue 12).
+#: Acceptance targets over the realistic conditions.
 TARGET_MEAN = {"rmve": 12.0, "aemv": 12.0}
 TARGET_WORST = {"rmve": 20.0, "aemv": 20.0}
 

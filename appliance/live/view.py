@@ -1,6 +1,6 @@
 """Rerun live view in its own thread, fed through slots that keep only the newest item.
 
-A stalled viewer makes ``rr.log`` block for tens of seconds (DESIGN.md), so nothing but this
+A stalled viewer makes ``rr.log`` block for tens of seconds (docs/design.md), so nothing but this
 module's thread ever calls Rerun: producers call :meth:`LiveView.push` with plain dataclasses
 (:class:`LiveFrame`, :class:`OperatorStatus`, :class:`LiveScalars`), which returns at once. A
 live view shows the present: the newest frame and the newest status each wait in a slot of

@@ -1,7 +1,7 @@
 """Reading the appliance's own MCAP logs message by message, tolerating a cut end.
 
 A file cut by a crash or power loss fails the seeking (indexed) reader, but the
-non-seeking reader returns every completed chunk (DESIGN.md). Readers here stop at the
+non-seeking reader returns every completed chunk (docs/design.md). Readers here stop at the
 cut, remember that they did (``truncated``), and let the caller say so to the user.
 """
 

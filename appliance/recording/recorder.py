@@ -5,7 +5,7 @@ Producers (camera threads, pairer, anemometer thread, result collector, health) 
 queue is full (by message count or by queued bytes) the message is dropped and counted per
 topic: acquisition never waits for the disk. The default queue holds 4096 messages / 256 MB,
 which is > 25 s of raw 2 x 30 Hz 320x240 uint16 frames; the writer itself needs ~3 ms per
-pair with zstd (DESIGN.md), so the queue stays nearly empty in normal operation.
+pair with zstd (docs/design.md), so the queue stays nearly empty in normal operation.
 
 The writer thread owns the files (naming and the open file: :mod:`.files`):
 

@@ -1,6 +1,6 @@
 """The driver of ``ogiflow reprocess``: plan, run segments as Ray tasks, merge, tabulate.
 
-Ray Core tasks, one per segment (DESIGN.md: ``ray.data.read_mcap`` puts a whole file in one
+Ray Core tasks, one per segment (docs/design.md: ``ray.data.read_mcap`` puts a whole file in one
 block, too coarse for triples): local Ray on all cores by default, or a running cluster
 (``--address auto`` on a cluster node, ``ray://head:10001`` through Ray Client). A task
 whose worker process or node dies is run again by Ray (``max_retries``); an exception in a

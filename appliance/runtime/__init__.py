@@ -1,4 +1,4 @@
-"""The running daemon (DESIGN.md's data flow).
+"""The running daemon (docs/design.md's data flow).
 
 Acquisition threads and the daemon (``daemon``), clocks and pairing (``clock``, ``pairing``,
 ``stamping``), the shared-memory ring buffer (``ring``), worker processes (``workers``),

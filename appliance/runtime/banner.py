@@ -71,7 +71,7 @@ def line_of_sight_words(est: RateEstimate) -> str:
     if "line_of_sight" not in est.flags or est.out_of_plane_deg is None:
         return ""
     return (f"; FLAGGED line_of_sight: the gas moves {est.out_of_plane_deg:.0f} deg out of the "
-            "image plane, where image-based rates read high (README, Emission rate)")
+            "image plane, where image-based rates read high (docs/method.md, emission rate)")
 
 
 def _fmt(v: Any) -> str:

@@ -1,6 +1,6 @@
 """The appliance daemon: starts and stops every part of a run in order.
 
-Data flow (DESIGN.md)::
+Data flow (docs/design.md)::
 
     camera L thread --Frame--\\                        /--> recorder thread (every raw frame,
     camera R thread --Frame---> pairing thread ------+        every wind sample, pair, result)

@@ -37,7 +37,7 @@ from processing.synthetic.schedule import ReleaseSchedule
 log = logging.getLogger("ogiflow.simsite")
 
 #: Bump when the way a scene is generated changes, so stale caches are not reused.
-SCENE_VERSION = 2  # 2: time-correlated release, flux and release-rate truth (issue 13)
+SCENE_VERSION = 2  # 2: time-correlated release, flux and release-rate truth
 #: Mean wind of the simulated anemometer when the config gives none, in Gill axes (U toward
 #: the north mark, V to its left, W up): with the default mounting (north mark along the
 #: optical axis) this is 1.5 m/s to the camera's right and 0.3 m/s away from it, a wind the
@@ -192,7 +192,7 @@ class SceneTruth:
             v, mask = triplet_reference(frames[i], frames[i + 1])
             self._means.append(v[mask].astype(np.float64).mean(axis=0) if mask.any() else None)
         self._means.append(None)  # frame n-1 starts a triple that wraps
-        # The true release of every frame (scenes since issue 13: it follows the schedule and
+        # The true release of every frame (scene version 2 on: it follows the schedule and
         # the fluctuation exactly), else the nominal one switched by the schedule.
         self.release_g_s = [self._nominal_g_s(i) if f.release_rate_g_s is None
                             else f.release_rate_g_s for i, f in enumerate(frames)]

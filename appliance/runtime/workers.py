@@ -9,7 +9,7 @@ acquisition and recording never wait for a worker. Results go back to the daemon
 a multiprocessing queue as :class:`WorkerResult` (fields reduced to what the recorder and
 the live view need).
 
-How the workers share the stream (measured, README "Speed"): a warm start from the
+How the workers share the stream (measured, docs/performance.md): a warm start from the
 previous triple makes a triple about twice as cheap as a cold one, but only a worker that
 saw that triple can use it. With two workers each takes every other triple (ring stride 2,
 phases 0 and 1) and starts from its own triple two frames earlier; "take the newest window"

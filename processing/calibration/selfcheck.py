@@ -5,8 +5,7 @@
 For each seed: random target poses, rendering through :func:`synthetic.example_rig` with
 IR appearance (low uneven contrast, noise, blur, inverted polarity every 3rd view, 8-bit
 every 4th), detection, calibration. Prints the relative focal-length and baseline errors
-and the reprojection RMS per seed and their worst case (issue 8 acceptance: 0.5 %, 1 %,
-0.3 px).
+and the reprojection RMS per seed and their worst case (targets: 0.5 %, 1 %, 0.3 px).
 """
 
 from __future__ import annotations

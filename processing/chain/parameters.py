@@ -15,7 +15,8 @@ from typing import Any
 
 __all__ = ["WARM_DISPARITY_OPTIONS", "WARM_FLOW_OPTIONS", "ChainParameters"]
 
-#: Solver options on a warm start (see ChainParameters); chosen by measurement, README.
+#: Solver options on a warm start (see ChainParameters), chosen by measurement
+#: (docs/performance.md).
 WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
                                               "n_inner_finest": 2, "n_sor": 8}

@@ -2,7 +2,7 @@
 
 The source is where gas appears: the upstream end of the segmented plume along its mean
 image-plane motion. Near the source the flow reads the gas too fast: new gas appearing there
-breaks brightness constancy (see the Table 3 analysis in the README), and the dense core of
+breaks brightness constancy (docs/accuracy.md, Table 3), and the dense core of
 a young plume, not yet carried at the wind's speed, moves slower than its edges, while the
 flow of differential images follows the edges (the steady core changes little between
 frames and gives the flow nothing to track; the smoothness term fills it in from the fast

@@ -11,7 +11,7 @@ unknown with non-negative edge weights to the four neighbours::
 
 It is solved with successive over-relaxation in red-black (checkerboard) order. Pixel
 (y, x) is red when x + y is even. Instead of striding over the full grid (stride-2 loops
-do not vectorise; DESIGN.md measured 75 ms against 25-30 ms for the whole flow), each
+do not vectorise; docs/design.md: 75 ms against 25-30 ms for the whole flow), each
 colour is stored *compactly*: row y of colour c holds its W/2 pixels contiguously, so the
 inner loop over a row reads contiguous memory with fixed neighbour offsets. The compact
 arrays carry a one-pixel halo of zeros so that neighbour indices never need bounds checks

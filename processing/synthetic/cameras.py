@@ -20,7 +20,7 @@ one by 6.6e-6 W m^-2 sr^-1 RMS after a 2 px Gaussian (what the chain's smoothing
 3.2e-6 with 2 x 2 rays, 1.5e-6 with 3 x 3 (and 4 x 4). On the robustness matrix's in-plane
 scene the image flow under 0.3 px jitter read 0.147 px per frame short with one ray, 0.102
 with 2 x 2 (0.076 without jitter), and V_Z under noise and jitter +0.32 m/s for 0, +0.19
-with 2 x 2 (measured, session 9). 2 x 2 costs four background evaluations per frame (57 ms
+with 2 x 2 (measured). 2 x 2 costs four background evaluations per frame (57 ms
 each at 320 x 240), 3 x 3 nine. Uniform and sky backgrounds are smooth and keep one ray.
 """
 

@@ -284,8 +284,8 @@ def shift_image(img: np.ndarray, shift_xy: tuple[float, float]) -> np.ndarray:
     to 1/32 px) low-passed each frame's gas by its own fractional shift, so consecutive
     frames and the two cameras saw differently blurred gas while the background, rendered
     through shifted rays, stayed sharp. That alone took the chain's V_Z on an out-of-plane
-    scene from 5 % to 15-40 % RMVE under 0.3 px jitter (measured, robustness matrix,
-    session 9); the spline keeps a Gaussian blob's peak within 0.1 % at a half-pixel shift.
+    scene from 5 % to 15-40 % RMVE under 0.3 px jitter (measured, robustness
+    matrix); the spline keeps a Gaussian blob's peak within 0.1 % at a half-pixel shift.
     """
     return ndimage.shift(np.asarray(img, np.float64), (float(shift_xy[1]), float(shift_xy[0])),
                          order=5, mode="nearest")

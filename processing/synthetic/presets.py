@@ -12,7 +12,7 @@ Measured characteristics (ogiflow simulate prints them; paper's Table 2 in brack
 92.3), (69.6, 159.3, 93.6) (71.0, 161.0, 89.3), (102.8, 158.0, 107.7) (101.3, 160.4, 105.8)
 deg; sigma 1.18 (1.38), 1.15 (0.97), 0.89 (1.25) m/s; N 6006 (8088), 6908 (7491), 6725 (8023)
 px. Those were measured with a release re-drawn at every step; with the time-correlated
-release (0.7 s, issue 13) |V*avg| is 2.73, 2.45, 2.92 m/s, sigma 1.07, 1.04, 1.04 m/s, N 6175,
+release (0.7 s) |V*avg| is 2.73, 2.45, 2.92 m/s, sigma 1.07, 1.04, 1.04 m/s, N 6175,
 7766, 6476 px (the release over a 11 ms sequence is one draw of the slow fluctuation).
 ``field`` imitates the appliance's cameras: 30 Hz frames (simulation sub-steps inside), a plume
 about 5.5 m away on 3 cm voxels, a configurable baseline and the anemometer's wind.

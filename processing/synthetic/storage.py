@@ -55,8 +55,8 @@ gt_release_rate_g_s      float64 ()   optional: mean release rate of the source(
                                       this frame and the next, g/s
 =======================  ===========  ====================================================
 
-The two optional keys exist in sequences written since the emission-rate ground truth
-(issue 13); readers treat their absence as "no truth" (None).
+The two optional keys (the emission-rate ground truth) may be missing in older sequences;
+readers treat their absence as "no truth" (None).
 
 Ground-truth timing: ``gt_velocity`` of frame ``i`` is the velocity that carries the gas of
 frame ``i`` to frame ``i + 1`` (the fluid velocity averaged over the simulation steps between
