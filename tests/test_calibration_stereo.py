@@ -23,7 +23,12 @@ from processing.calibration import (
     rectify_pair,
 )
 from processing.calibration.pattern import PatternSpec, detect_pattern, object_points
-from processing.calibration.rig import example_rig, random_target_poses, render_stereo_views
+from processing.calibration.rig import (
+    example_rig,
+    random_target_poses,
+    render_stereo_views,
+    right_pose,
+)
 from processing.calibration.stereo import outlier_threshold
 
 RIG = example_rig()
@@ -139,7 +144,7 @@ def _true_points(spec: PatternSpec, n: int, seed: int, noise_px: float = 0.05):
     for rvec, tvec in random_target_poses(RIG, spec, n, rng):
         p, _ = cv2.projectPoints(obj, rvec, tvec, RIG.K_left, RIG.D_left)
         left.append(p.reshape(-1, 2) + rng.normal(0, noise_px, (len(obj), 2)))
-        rr, tr = RIG.right_pose(rvec, tvec)
+        rr, tr = right_pose(RIG, rvec, tvec)
         p, _ = cv2.projectPoints(obj, rr, tr, RIG.K_right, RIG.D_right)
         right.append(p.reshape(-1, 2) + rng.normal(0, noise_px, (len(obj), 2)))
     return [f"v{i:02d}" for i in range(n)], left, right

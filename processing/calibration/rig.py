@@ -21,8 +21,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from processing.calibration.model import StereoCalibration
 from processing.calibration.pattern import PatternSpec, object_points
 from processing.calibration.radiometric import band_radiance, celsius_to_kelvin
+from processing.calibration.rectify import stereo_rectification
 
 
 @dataclass(frozen=True)
@@ -196,37 +198,13 @@ def ir_counts(
     return np.clip(np.rint(counts), 0, 65535).astype(np.uint16)
 
 
-@dataclass(frozen=True)
-class SyntheticRig:
-    """A known stereo model to render calibration views through.
-
-    Attributes
-    ----------
-    K_left, K_right : numpy.ndarray, shape (3, 3)
-        Camera matrices, pixels.
-    D_left, D_right : numpy.ndarray, shape (5,)
-        Distortion (k1, k2, p1, p2, k3).
-    R : numpy.ndarray, shape (3, 3)
-        Rotation left -> right.
-    T : numpy.ndarray, shape (3,)
-        Translation left -> right, metres.
-    image_size : (int, int)
-        (width, height), pixels.
-    """
-
-    K_left: np.ndarray
-    D_left: np.ndarray
-    K_right: np.ndarray
-    D_right: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    image_size: tuple[int, int]
-
-    def right_pose(self, rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Target pose in the right camera from its pose in the left camera."""
-        Rl, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
-        rr, _ = cv2.Rodrigues(self.R @ Rl)
-        return rr.ravel(), self.R @ np.asarray(tvec, np.float64).ravel() + self.T
+def right_pose(rig: StereoCalibration, rvec: np.ndarray, tvec: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Target pose (Rodrigues vector, translation in m) in the right camera of ``rig`` from
+    its pose in the left camera (X_r = R X_l + T)."""
+    Rl, _ = cv2.Rodrigues(np.asarray(rvec, np.float64))
+    rr, _ = cv2.Rodrigues(rig.R @ Rl)
+    return rr.ravel(), rig.R @ np.asarray(tvec, np.float64).ravel() + rig.T
 
 
 def _inside(points: np.ndarray, image_size: tuple[int, int], margin: float) -> bool:
@@ -237,7 +215,7 @@ def _inside(points: np.ndarray, image_size: tuple[int, int], margin: float) -> b
 
 
 def random_target_poses(
-    rig: SyntheticRig,
+    rig: StereoCalibration,
     spec: PatternSpec,
     n: int,
     rng: np.random.Generator,
@@ -285,29 +263,29 @@ def random_target_poses(
         t = np.array([x - rig.T[0] / 2.0, y, z]) - Rt @ centre
         rvec = cv2.Rodrigues(Rt)[0].ravel()
         pl, _ = cv2.projectPoints(hull, rvec, t, rig.K_left, rig.D_left)
-        rr, tr = rig.right_pose(rvec, t)
+        rr, tr = right_pose(rig, rvec, t)
         pr, _ = cv2.projectPoints(hull, rr, tr, rig.K_right, rig.D_right)
         if _inside(pl, rig.image_size, margin_px) and _inside(pr, rig.image_size, margin_px):
             poses.append((rvec, t))
     return poses
 
 
-def example_rig() -> SyntheticRig:
+def example_rig() -> StereoCalibration:
     """A 320x240 OGI-like pair: f ~ 400 px (~43 deg field of view), strong barrel
     distortion (k1 ~ -0.25), 0.25 m baseline, cameras turned ~2 deg towards each other."""
-    return SyntheticRig(
-        K_left=np.array([[400.0, 0.0, 162.3], [0.0, 401.0, 118.7], [0.0, 0.0, 1.0]]),
-        D_left=np.array([-0.25, 0.12, 0.001, -0.0005, 0.0]),
-        K_right=np.array([[405.0, 0.0, 158.1], [0.0, 405.5, 121.2], [0.0, 0.0, 1.0]]),
-        D_right=np.array([-0.22, 0.09, -0.0008, 0.0006, 0.0]),
-        R=cv2.Rodrigues(np.array([0.01, -0.03, 0.005]))[0],
-        T=np.array([-0.25, 0.004, 0.002]),
-        image_size=(320, 240),
+    return stereo_rectification(
+        np.array([[400.0, 0.0, 162.3], [0.0, 401.0, 118.7], [0.0, 0.0, 1.0]]),
+        np.array([-0.25, 0.12, 0.001, -0.0005, 0.0]),
+        np.array([[405.0, 0.0, 158.1], [0.0, 405.5, 121.2], [0.0, 0.0, 1.0]]),
+        np.array([-0.22, 0.09, -0.0008, 0.0006, 0.0]),
+        cv2.Rodrigues(np.array([0.01, -0.03, 0.005]))[0],
+        np.array([-0.25, 0.004, 0.002]),
+        (320, 240), meta={"source": "example rig (rendered calibration views)"},
     )
 
 
 def render_stereo_views(
-    rig: SyntheticRig,
+    rig: StereoCalibration,
     spec: PatternSpec,
     poses: list[tuple[np.ndarray, np.ndarray]],
     rng: np.random.Generator,
@@ -335,7 +313,7 @@ def render_stereo_views(
         dtype = np.uint8 if uint8_every > 0 and k % uint8_every == 1 else np.uint16
         left = ir_counts(render_pattern(spec, rays_l, rvec, tvec), rng,
                          inverted=inverted, dtype=dtype)
-        rr, tr = rig.right_pose(rvec, tvec)
+        rr, tr = right_pose(rig, rvec, tvec)
         right = ir_counts(render_pattern(spec, rays_r, rr, tr), rng, offset=21000.0,
                           contrast=500.0, inverted=inverted, dtype=dtype)
         views.append((f"view{k:02d}.png", left, right))
