@@ -21,6 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from processing.chain import StereoGeometry
+from processing.synthetic.sequences import RenderOptions, generate_sequence, preset_field
+
 SOURCES: tuple[str, ...] = ("field", "blob")
 FRAME_RATE_HZ = 30.0
 #: Geometry of the benchmark (the synthetic cameras': 320x240, s = 780 px, b = 0.2 m).
@@ -61,7 +64,6 @@ class BenchFrames:
 
 def geometry() -> Any:
     """The :class:`~processing.chain.StereoGeometry` of the benchmark (rectified cameras)."""
-    from processing.chain import StereoGeometry
 
     return StereoGeometry(camera_constant=CAMERA_CONSTANT_PX, principal_point=PRINCIPAL_POINT_PX,
                           baseline=BASELINE_M, image_size=IMAGE_SIZE)
@@ -71,7 +73,6 @@ def geometry() -> Any:
 
 
 def _field_config(n_frames: int, seed: int) -> Any:
-    from processing.synthetic.sequences import RenderOptions, preset_field
 
     return preset_field(n_frames=n_frames, b_m=BASELINE_M, voxel_m=0.06, seed=seed,
                         options=RenderOptions(noise_netd_k=0.03, jitter_px=0.1))
@@ -83,7 +84,6 @@ def field_frames(n_frames: int = 16, seed: int = 7) -> BenchFrames:
     Takes a few seconds (spin-up of the fluid, then 2 steps and 2 renders per frame), plus
     the numba compilation of the simulator on a machine that never ran it.
     """
-    from processing.synthetic.sequences import generate_sequence
 
     cfg = _field_config(n_frames, seed)
     cam = cfg.effective_camera()

@@ -27,6 +27,7 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
+from appliance.evaluation import roofline
 from appliance.evaluation.bench_input import (
     FRAME_RATE_HZ,
     SOURCES,
@@ -37,6 +38,10 @@ from appliance.evaluation.bench_input import (
     iter_triples,
     load_frames,
 )
+from appliance.memory import keep_freed_memory
+from processing.chain import ChainParameters, ChainState, compute_scene_flow
+from processing.chain.state import STRIDES
+from processing.flow.opencv import farneback_flow
 
 __all__ = ["FRAME_RATE_HZ", "SOURCES", "STAGES", "BenchFrames", "StageTimes", "Throughput",
            "blob_frames", "field_frames", "geometry", "iter_triples", "load_average",
@@ -55,7 +60,6 @@ def single_thread() -> None:
     targets are per core) and glibc's allocator tuned (:mod:`appliance.memory`)."""
     import cv2
 
-    from appliance.memory import keep_freed_memory
 
     keep_freed_memory()
     cv2.setNumThreads(1)
@@ -124,9 +128,6 @@ def _time_calls(calls: Any, runs: int) -> ChainTimes:
 
 def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> StageTimes:
     """Median per-stage and whole-chain times, warm and cold, in this process (one thread)."""
-    from appliance.evaluation import roofline
-    from processing.chain import ChainParameters, ChainState, compute_scene_flow
-    from processing.flow.opencv import farneback_flow
 
     if runs < 1 or warmup < 1:
         raise ValueError(f"runs and warmup must be >= 1, got {runs} and {warmup}")
@@ -201,8 +202,6 @@ def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, strid
     os.environ["NUMBA_NUM_THREADS"] = "1"  # before numba is first imported in this process
     os.environ["OMP_NUM_THREADS"] = "1"
     single_thread()
-    from processing.chain import ChainParameters, ChainState, compute_scene_flow
-    from processing.chain.state import STRIDES
 
     geo, params = geometry(), ChainParameters()
     state = ChainState(stride=stride if stride in STRIDES else 1)

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.robustness import FIELD_DISPARITY_OPTIONS
+from appliance.evaluation.sceneflow_figures import _line_panel
 from processing.calibration import load_calibration
 from processing.chain import (
     ChainParameters,
@@ -311,7 +312,6 @@ def write_figure(directory: Path, name: str, record: dict[str, Any]) -> Path:
     per triple, g/s."""
     import cv2
 
-    from appliance.evaluation.sceneflow_figures import _line_panel
 
     s = record["series"]
     img = _line_panel({"reference": s["truth"], "proposed": s["stereo"],

@@ -16,6 +16,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from processing.flow.brox import brox_optical_flow
+from processing.flow.opencv import dis_flow, farneback_flow
+from processing.metrics.flo import known_mask, read_flo
+from processing.metrics.flow import average_endpoint_error
+
 #: The alpha x beta grid of the paper's Table 1.
 TABLE1_ALPHAS = (0.5, 0.1, 0.05, 0.01)
 TABLE1_BETAS = (1.0, 0.5, 0.01)
@@ -79,8 +84,6 @@ def time_method(
 def flow_methods(alpha: float, beta: float, grid: bool = False) -> dict[str, FlowFn]:
     """Our Brox flow with (alpha, beta), OpenCV Farneback and DIS medium; with ``grid`` also
     Brox at every (alpha, beta) of the paper's Table 1."""
-    from processing.flow.brox import brox_optical_flow
-    from processing.flow.opencv import dis_flow, farneback_flow
 
     def brox(a: float, b: float) -> FlowFn:
         return lambda i0, i1: brox_optical_flow(i0, i1, alpha=a, beta=b)
@@ -110,8 +113,6 @@ def evaluate_flow(dataset: Path, methods: dict[str, FlowFn], repeats: int,
     ValueError
         ``repeats`` < 1, no sequence, or frames and ground truth of a sequence differ in size.
     """
-    from processing.metrics.flo import known_mask, read_flo
-    from processing.metrics.flow import average_endpoint_error
 
     if repeats < 1:
         raise ValueError(f"--repeats must be >= 1, got {repeats}")

@@ -29,6 +29,11 @@ from typing import Any
 
 import numpy as np
 
+from processing.chain.state import solver_options
+from processing.flow.brox import brox_optical_flow
+from processing.solvers.pyramid import pyramid_shapes
+from processing.stereo.joint import joint_disparity
+
 BYTES = 4  # float32
 SOR_ARRAYS = 19
 LAGGED_ARRAYS = 50
@@ -58,7 +63,6 @@ class Floor:
 
 def _solver_bytes(shape: tuple[int, int], options: Mapping[str, Any], defaults: Mapping[str, Any],
                   warp_arrays: int) -> float:
-    from processing.solvers.pyramid import pyramid_shapes
 
     o = {**defaults, **options}
     shapes = pyramid_shapes(shape, o["pyramid_factor"], min(o["min_level_size"], min(shape)))
@@ -83,9 +87,6 @@ def _defaults(func: Any) -> dict[str, Any]:
 
 def triple_bytes(shape: tuple[int, int], params: Any, *, warm: bool) -> float:
     """Bytes streamed per triple by the chain with ``params`` (a ChainParameters), (H, W)."""
-    from processing.chain.state import solver_options
-    from processing.flow.brox import brox_optical_flow
-    from processing.stereo.joint import joint_disparity
 
     flow = solver_options(params.flow_options, params.warm_flow_options, warm)
     disp = solver_options(params.disparity_options, params.warm_disparity_options, warm)

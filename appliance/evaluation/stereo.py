@@ -14,6 +14,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from processing.stereo.joint import joint_disparity
+from processing.stereo.sgm import sgbm_disparity, sgbm_initial_disparity
+
 METHOD_VARIATIONAL = "variational"
 METHOD_SGBM = "sgbm"
 
@@ -69,8 +72,6 @@ def evaluate_stereo(
         {"variational": {"mae", "bad1", "ms"}, "sgbm": {"mae", "bad1", "valid", "ms"}}
         with mae in px, bad1 and valid as fractions of the known ground-truth pixels.
     """
-    from processing.stereo.joint import joint_disparity
-    from processing.stereo.sgm import sgbm_disparity, sgbm_initial_disparity
 
     known = gt > 0
     if not known.any():

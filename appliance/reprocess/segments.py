@@ -27,8 +27,19 @@ from typing import Any
 
 import numpy as np
 
-from appliance.reprocess.source import PairStream, Recording
+from appliance.reprocess.source import PairStream, Recording, read_wind, wind_history
+from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.workers import (
+    NO_RADIOMETRY,
+    EmissionSetup,
+    WorkerResult,
+    compute_scene_flow_on,
+    emission_rate,
+    pack_result,
+)
 from processing.chain import ChainParameters, ChainState, StereoGeometry
+from processing.emission.estimator import EmissionSettings
+from processing.emission.gas import METHANE, load_gas
 
 
 @dataclass(frozen=True)
@@ -116,13 +127,6 @@ def run_segments(
         ``truncated`` when the recording ends inside a record (cut by a crash):
         everything up to the cut was processed.
     """
-    from appliance.runtime.workers import (
-        NO_RADIOMETRY,
-        WorkerResult,
-        compute_scene_flow_on,
-        emission_rate,
-        pack_result,
-    )
 
     owner = _Owner(segments)
     report = SegmentReport()
@@ -203,8 +207,6 @@ def process_into(
     merging). Returns the report and the publisher (with ``keep_summaries`` its ``summaries``
     hold every summary).
     """
-    from appliance.reprocess.source import read_wind, wind_history
-    from appliance.runtime.publishing import ResultPublisher
 
     wind = read_wind(rec.path)
     if copy_wind:
@@ -269,9 +271,6 @@ def recorded_emission(meta: Any, config: dict[str, Any],
     metadata when it has one, else its configuration, where the gas temperature is the
     configured one or the median recorded sonic temperature, and a gas file that is no
     longer readable falls back to methane (warned)."""
-    from appliance.runtime.workers import EmissionSetup
-    from processing.emission.estimator import EmissionSettings
-    from processing.emission.gas import METHANE, load_gas
 
     recorded = (meta.get("emission", {}) or {}).get("json")
     if recorded:

@@ -25,6 +25,13 @@ import numpy as np
 import yaml
 
 from appliance.config.schema import PairingConfig
+from appliance.recording.reader import iter_json, read_metadata
+from appliance.runtime.stamping import StereoStamper
+from drivers.anemometer.base import AnemometerConfigError
+from drivers.anemometer.history import WindHistory
+from drivers.anemometer.mounting import CameraWind, Mounting
+from drivers.camera.mcap_format import FrameLogReader
+from processing.calibration import load_calibration
 from processing.chain import ChainParameters, StereoGeometry
 
 
@@ -37,7 +44,6 @@ def load_geometry(meta: Mapping[str, Mapping[str, str]],
     ValueError
         When the recording carries neither and no calibration file is given.
     """
-    from processing.calibration import load_calibration
 
     if calibration is not None:
         return StereoGeometry.from_calibration(load_calibration(calibration))
@@ -125,7 +131,6 @@ class Recording:
     @classmethod
     def open(cls, path: Path) -> Recording:
         """Read the metadata of ``path``; ValueError when it is missing or not MCAP."""
-        from appliance.recording.reader import read_metadata
 
         if not path.is_file():
             raise ValueError(f"{path}: no such file")
@@ -160,7 +165,6 @@ class Recording:
 
 
 def _wall_offset(path: Path) -> int:
-    from appliance.recording.reader import iter_json
 
     _reader, messages = iter_json(path, ["/pairs", "/wind/raw"])
     for _topic, m in messages:
@@ -170,7 +174,6 @@ def _wall_offset(path: Path) -> int:
 
 def read_wind(path: Path) -> list[dict[str, Any]]:
     """Every recorded raw wind sample (``/wind/raw``) in file order."""
-    from appliance.recording.reader import iter_json
 
     _reader, messages = iter_json(path, ["/wind/raw"])
     return [m for _topic, m in messages]
@@ -181,9 +184,6 @@ def wind_history(rec: Recording, samples: Sequence[Mapping[str, Any]]) -> Any:
 
     None when the recorded mounting is unusable (warned) or there are no samples.
     """
-    from drivers.anemometer.base import AnemometerConfigError
-    from drivers.anemometer.history import WindHistory
-    from drivers.anemometer.mounting import CameraWind, Mounting
 
     anem = rec.config.get("anemometer", {}) or {}
     try:
@@ -218,8 +218,6 @@ class PairStream:
         self.skipped = 0
 
     def __iter__(self) -> Iterator[tuple[int, Any]]:
-        from appliance.runtime.stamping import StereoStamper
-        from drivers.camera.mcap_format import FrameLogReader
 
         stamper = StereoStamper(self.rec.frame_rate_hz, self.rec.tolerance_s,
                                 self.rec.max_delay_s)

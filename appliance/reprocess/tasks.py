@@ -12,7 +12,19 @@ import time
 from pathlib import Path
 from typing import Any
 
+from appliance.recording.tables import SUMMARY_COLUMNS, summary_row, write_parquet
 from appliance.reprocess.jobs import Job
+from appliance.reprocess.segments import Segment, cut_segments, process_into
+from appliance.reprocess.sink import McapSink
+from appliance.reprocess.source import (
+    PairStream,
+    Recording,
+    load_geometry,
+    load_parameters,
+    read_wind,
+)
+from appliance.runtime.workers import _single_threaded
+from drivers.camera.base import CameraError
 
 
 def plan_task(job: Job) -> dict[str, Any]:
@@ -21,9 +33,6 @@ def plan_task(job: Job) -> dict[str, Any]:
     Returns ``{"segments": [[first, stop], ...], "pairs", "truncated", "appliance_id",
     "output_meta"}`` or ``{"error": text}`` for an unreadable input.
     """
-    from appliance.reprocess.segments import cut_segments
-    from appliance.reprocess.source import PairStream, Recording
-    from drivers.camera.base import CameraError
 
     try:
         rec = Recording.open(job.input)
@@ -49,11 +58,6 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     Every attempt appends ``run_id pid host`` to the segment's attempts log first (how
     retries are counted, and how a test finds the worker to kill).
     """
-    from appliance.recording.tables import SUMMARY_COLUMNS, summary_row, write_parquet
-    from appliance.reprocess.segments import Segment, process_into
-    from appliance.reprocess.sink import McapSink
-    from appliance.reprocess.source import Recording, load_geometry, load_parameters
-    from appliance.runtime.workers import _single_threaded
 
     _single_threaded()
     seg_dir.mkdir(parents=True, exist_ok=True)
@@ -83,8 +87,6 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
 
 def merge_task(job: Job, n_segments: int, seg_dir: Path, output: Path) -> dict[str, Any]:
     """Write the job's output: metadata, raw wind, then every segment's messages in order."""
-    from appliance.reprocess.sink import McapSink
-    from appliance.reprocess.source import Recording, load_parameters, read_wind
 
     rec = Recording.open(job.input)
     params = load_parameters(rec.meta, job.overrides)

@@ -36,6 +36,7 @@ from drivers.anemometer.campbell import format_csat3b
 from drivers.anemometer.gill import format_gill_uvw
 from drivers.anemometer.metek import format_metek
 from drivers.anemometer.registry import make_decoder
+from drivers.anemometer.serial_transport import SerialAnemometer
 from drivers.anemometer.wind_model import WIND_KINDS, WindModel
 from drivers.anemometer.young import format_young
 
@@ -345,7 +346,6 @@ class SimulatedAnemometer(Anemometer):
         history: int = 100_000,
         **serial_options: Any,
     ) -> None:
-        from drivers.anemometer.serial_transport import SerialAnemometer
 
         super().__init__()
         self.sensor = SimulatedSensor(
