@@ -82,6 +82,8 @@ class Appliance:
         self.acquisition: Any = None
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
+        #: (W, H) of the images (the ring's slots, the zones).
+        self.image_size: tuple[int, int] = (0, 0)
         self.live_url: str | None = None
         #: Faults that end the run with exit code 1 (a thread died, files not finalised).
         self.failures: list[str] = []
@@ -99,13 +101,17 @@ class Appliance:
 
     # ------------------------------------------------------------------ set-up
 
-    def _geometry(self) -> StereoGeometry:
+    def _geometry(self) -> StereoGeometry | None:
+        """The stereo geometry (calibration, else the simulated scene's cameras); None at a
+        single-camera site without either (the single-camera chain needs none)."""
         from processing.calibration import load_calibration
 
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.site is not None and self.site.truth is not None:
             return StereoGeometry.from_synthetic_camera(self.site.truth.camera)
+        if self.cfg.cameras.right is None:
+            return None
         raise ValueError(
             "calibration: a stereo calibration file is required for real cameras "
             "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
@@ -130,7 +136,8 @@ class Appliance:
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
         elif self.publisher.publish(res) is not None:
             self.counters.results += 1
-            self.counters.cold_results += not res.warm
+            self.counters.cold_results += not res.warm and res.single_camera is None
+            self.counters.single_results += res.single_camera is not None
 
     def _truth_for(self, pair_index0: int) -> np.ndarray | None:
         """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""
@@ -197,7 +204,7 @@ class Appliance:
         start = time.monotonic()
         self._prepare(full_scene=True)
         done = []
-        if self.site is not None and self.site.folder is not None:
+        if self.site is not None and self.site.folder is not None and self.geometry is not None:
             done.append(f"simulated scene cached in {self.site.folder}")
             meta = read_sequence_meta(self.site.folder)
             f = [read_frame(self.site.folder, i, meta) for i in range(3)]
@@ -228,7 +235,11 @@ class Appliance:
         self.site = SimulatedSite(cfg, self._mounting.rotation)
         self.site.prepare(full=full_scene)
         self.geometry = self._geometry()
-        defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
+        self.image_size = (self.geometry.image_size if self.geometry is not None
+                           else probe_image_size(cfg, self.site))
+        defaults = ({} if self.geometry is None else
+                    self.site.chain_defaults(self.geometry.camera_constant,
+                                             self.geometry.baseline))
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
@@ -250,8 +261,8 @@ class Appliance:
                 log.warning("recovered %s after a crash", rep)
         cal_text = Path(cfg.calibration).read_text() if cfg.calibration is not None else None
         metadata = file_metadata(cfg, cal_text)
-        assert self.geometry is not None
-        metadata.update(processing_metadata(self.geometry, self.params))
+        if self.geometry is not None:
+            metadata.update(processing_metadata(self.geometry, self.params))
         if self.emission is not None:  # replay computes the rate as this run did
             metadata["emission"] = {"json": self.emission.to_json()}
         if rc.split:
@@ -278,9 +289,9 @@ class Appliance:
         """The shared-memory ring, the worker processes and the thread that takes results."""
         from appliance.runtime.pool import WorkerPool
 
-        assert self.geometry is not None
-        self.pool = WorkerPool(self.cfg, self.geometry, self.params, self.emission,
-                               self._handle_result, self.counters).start(stack, self._spawn)
+        self.pool = WorkerPool(self.cfg, self.geometry, self.image_size, self.params,
+                               self.emission, self._handle_result,
+                               self.counters).start(stack, self._spawn)
         self.ring = self.pool.ring
         self.publisher.fields_wanted = self.pool.fields_wanted
         stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
@@ -289,12 +300,14 @@ class Appliance:
         self.peak_rss_mb = [peak_rss_mb(None), *self.pool.worker_peak_rss_mb()]
 
     def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
+        from appliance.runtime.acquisition import nominal_frame_rate_hz
         from appliance.runtime.monitor import monitor_from_config
 
-        assert self.geometry is not None and self.site is not None
-        return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
+        assert self.site is not None
+        return monitor_from_config(self.cfg, self.image_size, stack, live=self.live,
                                    on_event=self._on_event,
-                                   true_rate_g_s=self.site.shown_true_rate_g_s())
+                                   true_rate_g_s=self.site.shown_true_rate_g_s(),
+                                   nominal_fps=nominal_frame_rate_hz(self.cfg))
 
     def _on_event(self, kind: str, event: dict[str, Any]) -> None:
         """A leak event changed: record it, and keep its raw frames as a clip."""
@@ -342,11 +355,13 @@ class Appliance:
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
             watchdog=self.watchdog)
         self.acquisition.sonic_k = self.pool.sonic_k
+        self.health.watch_cameras(self.acquisition.watch)
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
         for side in SIDES:
-            self._spawn(self.acquisition.camera_loop, f"camera-{side}", side)
+            if getattr(self.cfg.cameras, side) is not None:
+                self._spawn(self.acquisition.camera_loop, f"camera-{side}", side)
         stack.callback(self._join_acquisition)
 
     # ------------------------------------------------------------------ teardown
@@ -410,3 +425,38 @@ class Appliance:
         from appliance.runtime.counters import health_counters
 
         return health_counters(self)
+
+
+def probe_image_size(cfg: Config, site: SimulatedSite) -> tuple[int, int]:
+    """(W, H) of the single camera of a site without a calibration: its first frame (the
+    shared-memory ring's slots are sized before acquisition starts).
+
+    Raises
+    ------
+    RuntimeError
+        The camera delivers no frame within 10 s (a runtime fault: exit code 1).
+    """
+    from drivers.camera.base import CameraError
+    from drivers.camera.registry import create_camera
+
+    cam_cfg = cfg.cameras.left
+    assert cam_cfg is not None
+    camera = create_camera(cam_cfg.backend, **site.camera_options("left", cam_cfg))
+    try:
+        camera.open()
+        camera.start()
+        deadline = time.monotonic() + 10.0
+        while True:
+            try:
+                frame = camera.grab(timeout=0.5)
+                break
+            except CameraError as exc:
+                if time.monotonic() > deadline or not isinstance(exc, TimeoutError):
+                    raise
+    except CameraError as exc:
+        raise RuntimeError(f"cameras.left: no first frame to size the images: {exc}") from exc
+    finally:
+        with contextlib.suppress(CameraError, OSError):
+            camera.close()
+    h, w = frame.image.shape[:2]
+    return int(w), int(h)

@@ -76,11 +76,14 @@ class WorkerResult:
     raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
     rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
     warm: bool = False  # the solvers started from the worker's previous triple
+    #: The camera of a single-camera result ("left"/"right"; its diff and raw frame travel
+    #: as ``diff_left``/``raw_left``, the image the zones and the operator see); None: stereo.
+    single_camera: str | None = None
 
     @property
     def has_fields(self) -> bool:
         """Whether the full fields came along (see :func:`pack_result`)."""
-        return self.velocity is not None
+        return self.flow is not None if self.single_camera else self.velocity is not None
 
 
 @dataclass(frozen=True)
@@ -235,7 +238,7 @@ def worker_main(
     ring_handle: Any,
     results: Any,
     stop: Any,
-    geometry: StereoGeometry,
+    geometry: StereoGeometry | None,
     params: ChainParameters,
     n_workers: int = 1,
     emission: EmissionSetup | None = None,
@@ -256,7 +259,8 @@ def worker_main(
     stop : multiprocessing.Event
         Set by the daemon to end the worker.
     geometry, params
-        Stereo geometry and chain parameters (see :mod:`processing.chain`).
+        Stereo geometry (None at a single-camera site without a calibration) and chain
+        parameters (see :mod:`processing.chain`).
     n_workers : int
         How many workers share the stream (see the module docstring).
     emission : EmissionSetup or None
@@ -288,7 +292,9 @@ def worker_main(
     torn = 0
     undelivered = 0  # results the daemon did not take within a second (counted as skipped)
     trim = PeriodicTrim()
-    estimator = None if emission is None else emission.estimator(geometry)
+    estimator = (None if emission is None or geometry is None
+                 else emission.estimator(geometry))
+    single = SingleCameraWorker(params, stride)
     own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
         while not stop.is_set():
@@ -314,19 +320,31 @@ def worker_main(
                 done_mono_ns=0,
             )
             torn = undelivered = 0
+            camera = window_camera(meta)
             try:
-                res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
                 full = fields_wanted is None or bool(fields_wanted.value)
                 if full and fields_wanted is not None:
                     fields_wanted.value = 0  # two workers may both send: harmless
-                pack_result(res, base, raw_left=left[0], fields=full)
                 own += 1
-                if estimator is not None and emission is not None and (
-                        own % emission.every == 0):
-                    base.rate = emission_rate(estimator, left[1], res,
-                                              emission.temperature_k(sonic_k))
-                elif emission is not None:
-                    base.rate = NO_RADIOMETRY
+                rate_due = emission is not None and own % emission.every == 0
+                if camera is not None:
+                    tr = single(camera, left if camera == "left" else right, t_mono, base)
+                    pack_single(tr, base, camera, fields=full)
+                    if emission is not None:
+                        base.rate = single.rate(
+                            estimator if camera == "left" else None, emission,
+                            (left if camera == "left" else right)[1], tr, base.dt_s,
+                            sonic_k, rate_due)
+                else:
+                    if geometry is None:
+                        raise ValueError("a stereo pair at a site without stereo geometry")
+                    res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
+                    pack_result(res, base, raw_left=left[0], fields=full)
+                    if estimator is not None and emission is not None and rate_due:
+                        base.rate = emission_rate(estimator, left[1], res,
+                                                  emission.temperature_k(sonic_k))
+                    elif emission is not None:
+                        base.rate = NO_RADIOMETRY
             except ValueError as exc:  # bad frames: reported, the worker goes on
                 base.error = f"{type(exc).__name__}: {exc}"
             except Exception:
@@ -339,6 +357,102 @@ def worker_main(
             trim.tick()
     finally:
         ring.close()
+
+
+def window_camera(meta: list[dict[str, int]]) -> str | None:
+    """The camera whose frames a window holds alone ("left"/"right"), None for three
+    stereo pairs: a window across a loss or a return holds the survivor's frames in every
+    slot and runs the single-camera chain on them.
+
+    Raises
+    ------
+    ValueError
+        Slots of one camera alone and slots of the other alone (no camera in all three).
+    """
+    from appliance.runtime.ring import LEFT, RIGHT
+
+    bits = LEFT | RIGHT
+    for m in meta:
+        bits &= int(m.get("cameras", LEFT | RIGHT))
+    if bits == LEFT | RIGHT:
+        return None
+    if bits:
+        return "left" if bits & LEFT else "right"
+    raise ValueError("a window of frames of the left camera alone and the right alone")
+
+
+class SingleCameraWorker:
+    """One worker's single-camera chain (:mod:`appliance.runtime.single_camera`): a
+    normalisation scale per camera (``diff_scale``, else from its first triple) and the
+    jitter of the previous triple when it shares frames with this one (one worker)."""
+
+    def __init__(self, params: ChainParameters, stride: int) -> None:
+        self.params = params
+        self.stride = stride
+        self._scale: dict[str, float] = {}
+        self._prev: tuple[str, int, tuple[float, float]] | None = None
+
+    def __call__(self, camera: str, frames: np.ndarray, t_mono_ns: tuple[int, ...],
+                 base: WorkerResult) -> Any:
+        from appliance.runtime.single_camera import first_scale, mono_triple
+        from processing.chain import frame_interval
+
+        p = self.params
+        base.dt_s = frame_interval([t / 1e9 for t in t_mono_ns])
+        scale = p.diff_scale or self._scale.setdefault(camera, first_scale(frames))
+        first = base.pair_indices[0]
+        prev = self._prev
+        shift01 = prev[2] if prev is not None and prev[:2] == (camera, first - 1) else None
+        tr = mono_triple(first, list(frames), scale=scale, register=p.register,
+                         denoise_lambda=p.denoise_lambda, shift01=shift01,
+                         max_shift_px=p.max_jitter_px,
+                         flow_options={"alpha": p.alpha, "beta": p.beta, **p.flow_options},
+                         segmentation_options={"nu": p.nu, **p.segmentation_options})
+        self._prev = (camera, first, tr.shifts[1])
+        base.diff_scale = scale
+        return tr
+
+    def rate(self, estimator: EmissionEstimator | None, emission: EmissionSetup,
+             counts_t1: np.ndarray, tr: Any, dt_s: float | None, sonic_k: Any,
+             due: bool) -> FrameRate | None:
+        """The single-camera rate of a triple (None: not this triple, emission.every), or
+        the reason there is none."""
+        from appliance.runtime.single_camera import single_camera_rate
+
+        distance = emission.settings.typed_distance_m
+        if distance is None:
+            return NO_DISTANCE
+        if estimator is None:
+            return FrameRate(None, (), "single camera: the rate needs the left camera's "
+                                       "radiometric calibration (right camera, or none)")
+        if not due or dt_s is None:
+            return None
+        return single_camera_rate(estimator, counts_t1, tr, dt_s, distance,
+                                  emission.temperature_k(sonic_k))
+
+
+#: The rate of a single-camera triple without a typed-in distance.
+NO_DISTANCE = FrameRate(None, (), "single camera: no depth (set "
+                                  "emission.single_camera_distance_m)")
+
+
+def pack_single(tr: Any, base: WorkerResult, camera: str, *, fields: bool = True) -> None:
+    """Fill ``base`` with a single-camera triple (:class:`~appliance.runtime.single_camera.
+    MonoTriple`): gas mask and the flow at its pixels always, the flow, I_diff and the raw
+    frame with the fields; no disparity, no 3D velocity."""
+    n = int(tr.mask.sum())
+    flags = ["single_camera"] + ([] if camera == "left" else ["right_camera"])
+    base.single_camera = camera
+    base.summary = {"gas_pixel_count": n, "valid": False, "mean_velocity": None,
+                    "speed": None, "angles_deg": None, "c_usf": None, "flags": flags}
+    base.timings_ms = {**tr.timings_ms, "total": sum(tr.timings_ms.values())}
+    base.rejected_shifts = tr.rejected_shifts
+    base.gas_mask = tr.mask
+    base.gas_flow = tr.flow.reshape(-1, 2)[np.flatnonzero(tr.mask)]
+    if fields:
+        base.flow = tr.flow
+        base.diff_left = _to_u8(tr.diff)
+        base.raw_left = np.array(tr.raw, copy=True)
 
 
 def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[int, ...],
@@ -379,5 +493,6 @@ def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
             # temperature (the renderer's plume is colder than the air around it).
             t_gas = float(rad["t_gas_k"])
     return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
-                                          background_frames=em.background_frames),
+                                          background_frames=em.background_frames,
+                                          typed_distance_m=em.single_camera_distance_m),
                          t_gas, curve, every=em.every)
