@@ -319,9 +319,9 @@ def _check_cameras(cfg: Config, errors: list[str]) -> bool:
                       "has cameras.right: null)")
         return False
     if cfg.cameras.left is None:
-        errors.append("cameras.left: null while cameras.right names a camera; a "
-                      "single-camera site sets cameras.left to its camera and "
-                      "cameras.right: null (the left camera is the chain's reference)")
+        errors.append("cameras.left: null while cameras.right names a camera; set "
+                      "cameras.left to the camera and cameras.right: null (a single-camera "
+                      "site uses the left camera, the chain's reference)")
         return False
     return True
 

@@ -376,14 +376,15 @@ def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
 def log_sink(logger: logging.Logger = log, every: int = 10) -> Callable[[HealthSnapshot], None]:
     """Sink writing :func:`status_line` to the log (journald) every ``every`` snapshots, and at
     once whenever :func:`alarms` starts or stops having something to say."""
-    state = {"n": 0, "stalled": False}
+    state: dict[str, Any] = {"n": 0, "stalled": False, "mode": None}
 
     def sink(snap: HealthSnapshot) -> None:
         line = status_line(snap)
-        # At once when something starts or stops being wrong (an outage, a paused recording).
+        # At once when something starts or stops being wrong (an outage, a paused recording)
+        # and when a camera is lost or back (the mode changes).
         alarm = bool(alarms(snap))
-        changed = alarm != state["stalled"]
-        state["stalled"] = alarm
+        changed = alarm != state["stalled"] or snap.mode != state["mode"]
+        state["stalled"], state["mode"] = alarm, snap.mode
         if changed or state["n"] % every == 0:
             (logger.warning if alarm else logger.info)("health: %s", line)
         state["n"] += 1
