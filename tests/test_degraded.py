@@ -8,6 +8,7 @@ and frames, never by the machine's speed. The MQTT test needs Debian's mosquitto
 
 from __future__ import annotations
 
+import itertools
 import json
 import shutil
 import time
@@ -180,7 +181,7 @@ def test_single_camera_site_on_real_footage(tmp_path: Path) -> None:
     times = []
     for path in closed_files(tmp_path / "rec" / "raw"):
         times += [t for _, t, _, _ in LogReader(path, topics=["/camera/left/image"])]
-    steps = {round((b - a) / 1e9, 6) for a, b in zip(sorted(times), sorted(times)[1:])}
+    steps = {round((b - a) / 1e9, 6) for a, b in itertools.pairwise(sorted(times))}
     assert len(times) == 60 and steps == {1.0}
     # the daemon's events are the offline ones (pair index = frame number - 600 + 1: the
     # daemon numbers a triple by its middle pair, eval detection by its first frame)

@@ -84,11 +84,14 @@ class Acquisition:
         Simulated camera/anemometer defaults.
     recorder, publisher, ring, watchdog
         Where frames, pairs and wind samples go (recorder may be None).
+    watch : CameraWatch, optional
+        Which cameras deliver (default: a new one for the configured cameras).
     """
 
     def __init__(self, cfg: Config, counters: Any, health: Any, stop_event: threading.Event,
                  wall_ns: Callable[[int], int], site: SimulatedSite, *, recorder: Any,
-                 publisher: Any, ring: Any, watchdog: Any) -> None:
+                 publisher: Any, ring: Any, watchdog: Any,
+                 watch: CameraWatch | None = None) -> None:
         self.cfg = cfg
         self.counters = counters
         self.health = health
@@ -107,9 +110,8 @@ class Acquisition:
         self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
             collections.OrderedDict())
         self._pair_lock = threading.Lock()
-        present = {s: getattr(cfg.cameras, s) is not None for s in SIDES}
         #: Which cameras deliver (lost, returned; the pairing thread keeps it).
-        self.watch = CameraWatch(present, cfg.cameras.lost_after_s, wall_ns)
+        self.watch = watch if watch is not None else camera_watch(cfg, wall_ns)
         #: The nominal frame rate pairing and the clock models assume, Hz.
         self.frame_rate_hz = nominal_frame_rate_hz(cfg)
 
@@ -314,6 +316,12 @@ class Acquisition:
             "sonic_temperature_c": _finite_or_none(sample.sonic_temperature),
             "status": sample.status_code, "valid": bool(sample.valid),
         }, sample.host_ns)
+
+
+def camera_watch(cfg: Config, wall_ns: Callable[[int], int]) -> CameraWatch:
+    """The :class:`CameraWatch` of the configured cameras (``cameras.lost_after_s``)."""
+    present = {s: getattr(cfg.cameras, s) is not None for s in SIDES}
+    return CameraWatch(present, cfg.cameras.lost_after_s, wall_ns)
 
 
 def nominal_frame_rate_hz(cfg: Config) -> float:

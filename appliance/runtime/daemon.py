@@ -80,6 +80,7 @@ class Appliance:
         self.pool: Any = None
         self.site: SimulatedSite | None = None
         self.acquisition: Any = None
+        self.watch: Any = None  # which cameras deliver (runtime.degraded.CameraWatch)
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
         #: (W, H) of the images (the ring's slots, the zones).
@@ -217,6 +218,7 @@ class Appliance:
 
     def _prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
+        from appliance.runtime.acquisition import camera_watch
         from appliance.runtime.health import HealthMonitor
         from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
         from drivers.anemometer.history import WindHistory
@@ -224,6 +226,8 @@ class Appliance:
 
         cfg = self.cfg
         self.health = HealthMonitor(cfg.health.stall_s)
+        self.watch = camera_watch(cfg, self.wall_ns)
+        self.health.watch_cameras(self.watch)  # the first status already says the mode
         self.notifier = SdNotifier()
         period = watchdog_period_s() if cfg.health.watchdog else None
         self.watchdog = Watchdog(self.notifier, period, cfg.health.stall_s) if period else None
@@ -353,9 +357,8 @@ class Appliance:
         self.acquisition = Acquisition(
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
-            watchdog=self.watchdog)
+            watchdog=self.watchdog, watch=self.watch)
         self.acquisition.sonic_k = self.pool.sonic_k
-        self.health.watch_cameras(self.acquisition.watch)
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
