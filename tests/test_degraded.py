@@ -51,6 +51,20 @@ def test_camera_watch_loses_and_gets_back_a_camera() -> None:
     assert single.degraded_s(10 * s) == 0.0
 
 
+def test_a_window_across_a_loss_runs_on_the_survivor() -> None:
+    """Stereo pairs and the left camera's frames alone: the window runs single-camera on
+    the left; three pairs run stereo; no camera in all three slots is an error."""
+    from appliance.runtime.ring import LEFT, RIGHT
+    from appliance.runtime.single_camera import window_camera
+
+    both = {"cameras": LEFT | RIGHT}
+    assert window_camera([both, both, both]) is None
+    assert window_camera([both, {"cameras": LEFT}, {"cameras": LEFT}]) == "left"
+    assert window_camera([{"cameras": RIGHT}, both, both]) == "right"
+    with pytest.raises(ValueError):
+        window_camera([{"cameras": LEFT}, {"cameras": RIGHT}, both])
+
+
 @pytest.mark.parametrize(("cameras", "key"), [
     ({"left": None, "right": None}, "cameras: no camera configured"),
     ({"left": None}, "cameras.left: null while cameras.right names a camera"),

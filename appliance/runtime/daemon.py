@@ -41,6 +41,7 @@ from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
+from appliance.runtime.single_camera import probe_image_size
 from appliance.runtime.tuning import PeriodicTrim
 from appliance.runtime.workers import WorkerResult, emission_setup
 from processing.chain import ChainParameters, StereoGeometry
@@ -240,7 +241,7 @@ class Appliance:
         self.site.prepare(full=full_scene)
         self.geometry = self._geometry()
         self.image_size = (self.geometry.image_size if self.geometry is not None
-                           else probe_image_size(cfg, self.site))
+                           else probe_image_size(cfg, self.site))  # a single-camera site
         defaults = ({} if self.geometry is None else
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
@@ -429,37 +430,3 @@ class Appliance:
 
         return health_counters(self)
 
-
-def probe_image_size(cfg: Config, site: SimulatedSite) -> tuple[int, int]:
-    """(W, H) of the single camera of a site without a calibration: its first frame (the
-    shared-memory ring's slots are sized before acquisition starts).
-
-    Raises
-    ------
-    RuntimeError
-        The camera delivers no frame within 10 s (a runtime fault: exit code 1).
-    """
-    from drivers.camera.base import CameraError
-    from drivers.camera.registry import create_camera
-
-    cam_cfg = cfg.cameras.left
-    assert cam_cfg is not None
-    camera = create_camera(cam_cfg.backend, **site.camera_options("left", cam_cfg))
-    try:
-        camera.open()
-        camera.start()
-        deadline = time.monotonic() + 10.0
-        while True:
-            try:
-                frame = camera.grab(timeout=0.5)
-                break
-            except CameraError as exc:
-                if time.monotonic() > deadline or not isinstance(exc, TimeoutError):
-                    raise
-    except CameraError as exc:
-        raise RuntimeError(f"cameras.left: no first frame to size the images: {exc}") from exc
-    finally:
-        with contextlib.suppress(CameraError, OSError):
-            camera.close()
-    h, w = frame.image.shape[:2]
-    return int(w), int(h)

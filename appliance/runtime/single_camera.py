@@ -5,8 +5,9 @@ of one camera: differential images (Eq. 2) with jitter removal and denoising
 (:func:`processing.preprocess.preprocess_camera`), the flow between them (Eq. 5) and the
 level-set segmentation (Eq. 9). No stereo: no disparity, no 3D velocity; an emission rate
 only with a typed-in distance (:func:`single_camera_rate`). ``ogiflow eval detection`` and
-``ogiflow eval footage`` run it on folders of frames, the daemon on a camera whose partner
-is lost and on single-camera sites: one path for both.
+``ogiflow eval footage`` run it on folders of frames, the daemon's workers
+(:class:`SingleCameraWorker`) on a camera whose partner is lost and on single-camera sites:
+one path for both.
 """
 
 from __future__ import annotations
@@ -116,3 +117,114 @@ def single_camera_rate(estimator: Any, counts_t1: np.ndarray, tr: MonoTriple, dt
         return FrameRate(None, (), f"single-camera rate failed: {exc}")
     # one camera sees no motion out of the image plane: that angle stays unknown
     return FrameRate(r.rate_g_s, r.curtain_rates_g_s, r.reason, None)
+
+
+def window_camera(meta: list[dict[str, int]]) -> str | None:
+    """The camera whose frames a window holds alone ("left"/"right"), None for three
+    stereo pairs: a window across a loss or a return holds the survivor's frames in every
+    slot and runs the single-camera chain on them.
+
+    Raises
+    ------
+    ValueError
+        Slots of one camera alone and slots of the other alone (no camera in all three).
+    """
+    from appliance.runtime.ring import LEFT, RIGHT
+
+    bits = LEFT | RIGHT
+    for m in meta:
+        bits &= int(m.get("cameras", LEFT | RIGHT))
+    if bits == LEFT | RIGHT:
+        return None
+    if bits:
+        return "left" if bits & LEFT else "right"
+    raise ValueError("a window of frames of the left camera alone and the right alone")
+
+
+class SingleCameraWorker:
+    """One worker's single-camera chain (:mod:`appliance.runtime.single_camera`): a
+    normalisation scale per camera (``diff_scale``, else from its first triple) and the
+    jitter of the previous triple when it shares frames with this one (one worker)."""
+
+    def __init__(self, params: Any) -> None:
+        self.params = params  # processing.chain.ChainParameters
+        self._scale: dict[str, float] = {}
+        self._prev: tuple[str, int, tuple[float, float]] | None = None
+
+    def __call__(self, camera: str, frames: np.ndarray, t_mono_ns: tuple[int, ...],
+                 base: Any) -> MonoTriple:
+        from processing.chain import frame_interval
+
+        p = self.params
+        base.dt_s = frame_interval([t / 1e9 for t in t_mono_ns])
+        scale = p.diff_scale or self._scale.get(camera)
+        if scale is None:
+            scale = self._scale[camera] = first_scale(frames)
+        first = base.pair_indices[0]
+        prev = self._prev
+        shift01 = prev[2] if prev is not None and prev[:2] == (camera, first - 1) else None
+        tr = mono_triple(first, list(frames), scale=scale, register=p.register,
+                         denoise_lambda=p.denoise_lambda, shift01=shift01,
+                         max_shift_px=p.max_jitter_px,
+                         flow_options={"alpha": p.alpha, "beta": p.beta, **p.flow_options},
+                         segmentation_options={"nu": p.nu, **p.segmentation_options})
+        self._prev = (camera, first, tr.shifts[1])
+        base.diff_scale = scale
+        return tr
+
+    def rate(self, estimator: Any, emission: Any, counts_t1: np.ndarray, tr: MonoTriple,
+             dt_s: float | None, sonic_k: Any, due: bool) -> FrameRate | None:
+        """The single-camera rate of a triple (None: not this triple, emission.every), or
+        the reason there is none."""
+        distance = emission.settings.typed_distance_m
+        if distance is None:
+            return NO_DISTANCE
+        if estimator is None:
+            return FrameRate(None, (), "single camera: the rate needs the left camera's "
+                                       "radiometric calibration (right camera, or none)")
+        if not due or dt_s is None:
+            return None
+        return single_camera_rate(estimator, counts_t1, tr, dt_s, distance,
+                                  emission.temperature_k(sonic_k))
+
+
+#: The rate of a single-camera triple without a typed-in distance.
+NO_DISTANCE = FrameRate(None, (), "single camera: no depth (set "
+                                  "emission.single_camera_distance_m)")
+
+
+def probe_image_size(cfg: Any, site: Any) -> tuple[int, int]:
+    """(W, H) of the single camera of a site without a calibration: its first frame (the
+    shared-memory ring's slots are sized before acquisition starts).
+
+    Raises
+    ------
+    RuntimeError
+        The camera delivers no frame within 10 s (a runtime fault: exit code 1).
+    """
+    import contextlib
+
+    from drivers.camera.base import CameraError
+    from drivers.camera.registry import create_camera
+
+    cam_cfg = cfg.cameras.left
+    assert cam_cfg is not None
+    camera = create_camera(cam_cfg.backend, **site.camera_options("left", cam_cfg))
+    try:
+        camera.open()
+        camera.start()
+        deadline = time.monotonic() + 10.0
+        while True:
+            try:
+                frame = camera.grab(timeout=0.5)
+                break
+            except CameraError as exc:
+                if time.monotonic() > deadline or not isinstance(exc, TimeoutError):
+                    raise
+    except CameraError as exc:
+        raise RuntimeError(f"cameras.left: no first frame to size the images: {exc}") from exc
+    finally:
+        with contextlib.suppress(CameraError, OSError):
+            camera.close()
+    h, w = frame.image.shape[:2]
+    return int(w), int(h)

@@ -292,9 +292,11 @@ def worker_main(
     torn = 0
     undelivered = 0  # results the daemon did not take within a second (counted as skipped)
     trim = PeriodicTrim()
+    from appliance.runtime.single_camera import SingleCameraWorker, window_camera
+
     estimator = (None if emission is None or geometry is None
                  else emission.estimator(geometry))
-    single = SingleCameraWorker(params, stride)
+    single = SingleCameraWorker(params)
     own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
         while not stop.is_set():
@@ -357,83 +359,6 @@ def worker_main(
             trim.tick()
     finally:
         ring.close()
-
-
-def window_camera(meta: list[dict[str, int]]) -> str | None:
-    """The camera whose frames a window holds alone ("left"/"right"), None for three
-    stereo pairs: a window across a loss or a return holds the survivor's frames in every
-    slot and runs the single-camera chain on them.
-
-    Raises
-    ------
-    ValueError
-        Slots of one camera alone and slots of the other alone (no camera in all three).
-    """
-    from appliance.runtime.ring import LEFT, RIGHT
-
-    bits = LEFT | RIGHT
-    for m in meta:
-        bits &= int(m.get("cameras", LEFT | RIGHT))
-    if bits == LEFT | RIGHT:
-        return None
-    if bits:
-        return "left" if bits & LEFT else "right"
-    raise ValueError("a window of frames of the left camera alone and the right alone")
-
-
-class SingleCameraWorker:
-    """One worker's single-camera chain (:mod:`appliance.runtime.single_camera`): a
-    normalisation scale per camera (``diff_scale``, else from its first triple) and the
-    jitter of the previous triple when it shares frames with this one (one worker)."""
-
-    def __init__(self, params: ChainParameters, stride: int) -> None:
-        self.params = params
-        self.stride = stride
-        self._scale: dict[str, float] = {}
-        self._prev: tuple[str, int, tuple[float, float]] | None = None
-
-    def __call__(self, camera: str, frames: np.ndarray, t_mono_ns: tuple[int, ...],
-                 base: WorkerResult) -> Any:
-        from appliance.runtime.single_camera import first_scale, mono_triple
-        from processing.chain import frame_interval
-
-        p = self.params
-        base.dt_s = frame_interval([t / 1e9 for t in t_mono_ns])
-        scale = p.diff_scale or self._scale.setdefault(camera, first_scale(frames))
-        first = base.pair_indices[0]
-        prev = self._prev
-        shift01 = prev[2] if prev is not None and prev[:2] == (camera, first - 1) else None
-        tr = mono_triple(first, list(frames), scale=scale, register=p.register,
-                         denoise_lambda=p.denoise_lambda, shift01=shift01,
-                         max_shift_px=p.max_jitter_px,
-                         flow_options={"alpha": p.alpha, "beta": p.beta, **p.flow_options},
-                         segmentation_options={"nu": p.nu, **p.segmentation_options})
-        self._prev = (camera, first, tr.shifts[1])
-        base.diff_scale = scale
-        return tr
-
-    def rate(self, estimator: EmissionEstimator | None, emission: EmissionSetup,
-             counts_t1: np.ndarray, tr: Any, dt_s: float | None, sonic_k: Any,
-             due: bool) -> FrameRate | None:
-        """The single-camera rate of a triple (None: not this triple, emission.every), or
-        the reason there is none."""
-        from appliance.runtime.single_camera import single_camera_rate
-
-        distance = emission.settings.typed_distance_m
-        if distance is None:
-            return NO_DISTANCE
-        if estimator is None:
-            return FrameRate(None, (), "single camera: the rate needs the left camera's "
-                                       "radiometric calibration (right camera, or none)")
-        if not due or dt_s is None:
-            return None
-        return single_camera_rate(estimator, counts_t1, tr, dt_s, distance,
-                                  emission.temperature_k(sonic_k))
-
-
-#: The rate of a single-camera triple without a typed-in distance.
-NO_DISTANCE = FrameRate(None, (), "single camera: no depth (set "
-                                  "emission.single_camera_distance_m)")
 
 
 def pack_single(tr: Any, base: WorkerResult, camera: str, *, fields: bool = True) -> None:
