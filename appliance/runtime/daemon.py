@@ -41,7 +41,6 @@ from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.single_camera import probe_image_size
 from appliance.runtime.tuning import PeriodicTrim
 from appliance.runtime.workers import WorkerResult, emission_setup
 from processing.chain import ChainParameters, StereoGeometry
@@ -222,6 +221,7 @@ class Appliance:
         from appliance.runtime.acquisition import camera_watch
         from appliance.runtime.health import HealthMonitor
         from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+        from appliance.runtime.single_camera import probe_image_size
         from drivers.anemometer.history import WindHistory
         from drivers.anemometer.mounting import Mounting
 
