@@ -60,10 +60,21 @@ class CameraConfig:
 
 @dataclass(frozen=True)
 class CamerasConfig:
-    """The stereo pair: ``left`` is the reference camera of the scene flow."""
+    """The stereo pair: ``left`` is the reference camera of the scene flow.
 
-    left: CameraConfig = _opt("left (reference) camera", factory=CameraConfig)
-    right: CameraConfig = _opt("right camera", factory=CameraConfig)
+    ``right: null`` is a single-camera site: the left camera alone runs the single-camera
+    chain (no stereo calibration, no rectification, no 3D velocity).
+    """
+
+    left: CameraConfig | None = _opt(
+        "left (reference) camera; the camera of a single-camera site", factory=CameraConfig)
+    right: CameraConfig | None = _opt(
+        "right camera; null = a single-camera site (the left camera alone)",
+        factory=CameraConfig)
+    lost_after_s: float = _opt(
+        "a camera of the pair that delivers nothing for this long is lost: the daemon goes "
+        "on with the other one (single-camera chain, same leak events) until it returns",
+        3.0, gt=0.0, max=3600.0)
 
 
 @dataclass(frozen=True)
@@ -290,6 +301,10 @@ class EmissionConfig:
     pressure_pa: float = _opt("ambient pressure, Pa", 101325.0, min=50_000.0, max=120_000.0)
     background_frames: int = _opt("frames (per worker) of the background radiance model", 60,
                                   min=8, max=10_000)
+    single_camera_distance_m: float | None = _opt(
+        "distance of the leak from the camera, m, for the single-camera rate (one camera "
+        "has no depth: without it, single-camera results carry no rate); such rates are "
+        "flagged single_camera", None, gt=0.0, max=10_000.0)
 
 
 @dataclass(frozen=True)

@@ -255,11 +255,13 @@ def _check_calibration(cfg: Config, errors: list[str]) -> None:
     from processing.calibration import load_calibration
 
     if cfg.calibration is None:
-        if not any(c.backend == "simulated" and "source" not in c.options
-                   for c in (cfg.cameras.left, cfg.cameras.right)):
+        if cfg.cameras.right is not None and not any(
+                c is not None and c.backend == "simulated" and "source" not in c.options
+                for c in (cfg.cameras.left, cfg.cameras.right)):
             errors.append("calibration: a stereo calibration file is required unless a "
                           "simulated camera renders the scene (run `ogiflow calibrate "
-                          "stereo`, then set calibration: to its file)")
+                          "stereo`, then set calibration: to its file) or the site has "
+                          "one camera (cameras.right: null)")
         return
     if not cfg.calibration.is_file():
         errors.append(f"calibration: file not found: {str(cfg.calibration)!r}")
@@ -271,7 +273,7 @@ def _check_calibration(cfg: Config, errors: list[str]) -> None:
 
 
 def _check_processing(cfg: Config, errors: list[str]) -> None:
-    from processing.chain import ChainParameters
+    from processing.chain.driver import ChainParameters
 
     try:
         ChainParameters.from_mapping(cfg.processing.parameters)
@@ -308,6 +310,22 @@ def _check_name(path: str, name: str, table: Mapping[str, str], kind: str,
     return False
 
 
+def _check_cameras(cfg: Config, errors: list[str]) -> bool:
+    """Which cameras the site has: both, or the left one alone (the left camera is the
+    reference of the chain, its pixels those of the zones). False when it makes no sense."""
+    if cfg.cameras.left is None and cfg.cameras.right is None:
+        errors.append("cameras: no camera configured (cameras.left and cameras.right are "
+                      "both null); set cameras.left to the camera (a single-camera site "
+                      "has cameras.right: null)")
+        return False
+    if cfg.cameras.left is None:
+        errors.append("cameras.left: null while cameras.right names a camera; set "
+                      "cameras.left to the camera and cameras.right: null (a single-camera "
+                      "site uses the left camera, the chain's reference)")
+        return False
+    return True
+
+
 def _device_checks(cfg: Config, errors: list[str]) -> None:
     """Back-end and protocol names and option keys: known before any device opens."""
     from drivers.anemometer import registry as anemometers
@@ -316,8 +334,12 @@ def _device_checks(cfg: Config, errors: list[str]) -> None:
     from drivers.camera import registry as cameras
     from drivers.camera.base import CameraBackendMissing
 
+    if not _check_cameras(cfg, errors):
+        return
     for side in ("left", "right"):
         cam = getattr(cfg.cameras, side)
+        if cam is None:
+            continue
         path = f"cameras.{side}"
         if not _check_name(f"{path}.backend", cam.backend, cameras.BACKENDS,
                            "camera back end", errors):

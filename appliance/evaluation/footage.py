@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import re
 import statistics
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ import cv2
 import numpy as np
 
 from appliance.live.colour import flow_bgr
+from appliance.runtime.single_camera import MonoTriple, mono_triple
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 FRAME_NUMBER = re.compile(r"frame(\d+)\.[A-Za-z]+$")
@@ -179,21 +179,6 @@ def _stats(values: list[float]) -> dict[str, float | None]:
     return {"mean": float(np.mean(values)), "min": float(min(values)), "max": float(max(values))}
 
 
-@dataclass
-class MonoTriple:
-    """One consecutive triple (N, N+1, N+2) of a single-camera set, through the chain's
-    first stages: raw frame N, I_diff(N) in [0, 1], flow (Eq. 5), gas mask (Eq. 9)."""
-
-    frame: int
-    raw: np.ndarray
-    diff: np.ndarray
-    flow: np.ndarray
-    mask: np.ndarray
-    activity_ratio: float
-    shifts: tuple[tuple[float, float], tuple[float, float]]
-    timings_ms: dict[str, float]
-
-
 def iter_mono_triples(name: str, frames: list[tuple[int, Path]], settings: FootageSettings
                       ) -> Iterator[MonoTriple]:
     """Pre-processing, flow and segmentation of every consecutive triple of one set.
@@ -203,10 +188,6 @@ def iter_mono_triples(name: str, frames: list[tuple[int, Path]], settings: Foota
     ValueError
         An unreadable image, or frames of one triple that differ in size.
     """
-    from processing.flow.brox import brox_optical_flow
-    from processing.preprocess.differential import preprocess_camera
-    from processing.segmentation.segment import segment_gas
-
     paths = dict(frames)
     shift01 = None
     prev_n = None
@@ -219,22 +200,16 @@ def iter_mono_triples(name: str, frames: list[tuple[int, Path]], settings: Foota
                     cache[k] = read_frame(paths[k])
                 imgs.append(cache[k])
             cache.pop(n - 1, None)
-            if imgs[0].shape != imgs[1].shape or imgs[0].shape != imgs[2].shape:
-                raise ValueError(f"{name}: frames {n}..{n + 2} differ in size")
-            t0 = time.perf_counter()
-            pre = preprocess_camera(imgs, scale=settings.scale, register=settings.register,
-                                    denoise_lambda=settings.denoise_lambda,
-                                    shift01=shift01 if prev_n == n - 1 else None)
-            t1 = time.perf_counter()
-            flow = brox_optical_flow(pre.diff0, pre.diff1)
-            t2 = time.perf_counter()
-            seg = segment_gas(pre.diff0, flow, min_activity_ratio=settings.min_activity_ratio)
-            t3 = time.perf_counter()
-            shift01, prev_n = pre.shifts[1], n
-            yield MonoTriple(n, imgs[0], pre.diff0, flow, seg.mask, float(seg.activity_ratio),
-                             (tuple(pre.shifts[0]), tuple(pre.shifts[1])),  # type: ignore[arg-type]
-                             {"preprocess": (t1 - t0) * 1e3, "flow": (t2 - t1) * 1e3,
-                              "segmentation": (t3 - t2) * 1e3})
+            try:
+                tr = mono_triple(n, imgs, scale=settings.scale, register=settings.register,
+                                 denoise_lambda=settings.denoise_lambda,
+                                 shift01=shift01 if prev_n == n - 1 else None,
+                                 segmentation_options={
+                                     "min_activity_ratio": settings.min_activity_ratio})
+            except ValueError as exc:
+                raise ValueError(f"{name}: {exc}") from None
+            shift01, prev_n = tr.shifts[1], n
+            yield tr
 
 
 def evaluate_footage(data: Path, settings: FootageSettings, *, figure_set: str | None = None,

@@ -223,6 +223,20 @@ HEALTH = _json_schema(
         "counters": {"type": "object", "additionalProperties": _INT},
         "gauges": {"type": "object", "additionalProperties": _NUM_OR_NULL},
         "stalled": {"type": "boolean", "description": "no new frame for health.stall_s"},
+        "mode": {"enum": ["stereo", "degraded", "single_camera"],
+                 "description": "stereo, degraded (a camera of the pair lost: the other "
+                                "runs the single-camera chain) or single_camera (site)"},
+        "cameras": {"type": "object", "additionalProperties": {
+            "type": "object",
+            "properties": {
+                "configured": {"type": "boolean"},
+                "lost": {"type": "boolean", "description": "silent for cameras.lost_after_s"},
+                "lost_since_wall_ns": {**_INT_OR_NULL,
+                                       "description": "UNIX ns of its last frame before "
+                                                      "the loss"},
+            },
+            "required": ["configured", "lost", "lost_since_wall_ns"],
+            "additionalProperties": False}},
     },
     ["t_mono_ns", "t_wall_ns", "uptime_s", "streams", "latencies", "counters", "gauges",
      "stalled"],

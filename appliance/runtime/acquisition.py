@@ -22,6 +22,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.recording import schemas
+from appliance.runtime.degraded import CameraWatch
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.stamping import SIDES, StereoStamper
 
@@ -60,6 +61,10 @@ class Counters:
     cold_results: int = 0
     wind_samples: int = 0
     worker_restarts: int = 0
+    #: Frames of one camera written alone (a camera lost, or a single-camera site).
+    single_frames: int = 0
+    #: Results of the single-camera chain (among ``results``).
+    single_results: int = 0
 
 
 class Acquisition:
@@ -79,11 +84,14 @@ class Acquisition:
         Simulated camera/anemometer defaults.
     recorder, publisher, ring, watchdog
         Where frames, pairs and wind samples go (recorder may be None).
+    watch : CameraWatch, optional
+        Which cameras deliver (default: a new one for the configured cameras).
     """
 
     def __init__(self, cfg: Config, counters: Any, health: Any, stop_event: threading.Event,
                  wall_ns: Callable[[int], int], site: SimulatedSite, *, recorder: Any,
-                 publisher: Any, ring: Any, watchdog: Any) -> None:
+                 publisher: Any, ring: Any, watchdog: Any,
+                 watch: CameraWatch | None = None) -> None:
         self.cfg = cfg
         self.counters = counters
         self.health = health
@@ -102,6 +110,10 @@ class Acquisition:
         self._pair_frame_ids: collections.OrderedDict[int, int | None] = (
             collections.OrderedDict())
         self._pair_lock = threading.Lock()
+        #: Which cameras deliver (lost, returned; the pairing thread keeps it).
+        self.watch = watch if watch is not None else camera_watch(cfg, wall_ns)
+        #: The nominal frame rate pairing and the clock models assume, Hz.
+        self.frame_rate_hz = nominal_frame_rate_hz(cfg)
 
     def frame_ids(self, *pair_indices: int) -> list[int | None]:
         """Device frame numbers of the left frames of recent pairs (None when unknown)."""
@@ -189,10 +201,16 @@ class Acquisition:
         self._last_frame_id[side] = fid
 
     def pairing_loop(self) -> None:
-        """Stamp frames (clock model per camera), pair them, write pairs to the ring."""
-        stamper = StereoStamper(self.cfg.cameras.left.frame_rate_hz,
-                                self.cfg.pairing.tolerance_s, self.cfg.pairing.max_delay_s)
+        """Stamp frames (clock model per camera), pair them, write pairs to the ring; while
+        a camera is lost (or at a single-camera site) write the other camera's frames alone.
+        """
+        from appliance.runtime.clock import ClockModel
+
+        stamper = StereoStamper(self.frame_rate_hz, self.cfg.pairing.tolerance_s,
+                                self.cfg.pairing.max_delay_s)
+        watch = self.watch
         stream = self.health.stream("pairs")
+        mono_stream = self.health.stream("single_camera")
         index = 0
         while True:
             try:
@@ -200,16 +218,41 @@ class Acquisition:
             except queue.Empty:
                 if self.stop_event.is_set():
                     break
-                pairs = stamper.poll(time.monotonic_ns())
+                now = time.monotonic_ns()
+                self._note_lost(watch.check(now))
+                pairs = stamper.poll(now) if watch.survivor is None else []
             else:
                 # "Now" is the frame's arrival, not this thread's clock: when this thread
                 # lags, the partner may already wait in the queue and must not be given up.
-                pairs = stamper.push(side, frame, frame.host_ns)
+                if watch.frame(side, frame.host_ns):
+                    log.warning("camera %s: delivering again; stereo resumes", side)
+                    # its clock restarted with the device: a model of its own from scratch
+                    stamper.clocks[side] = ClockModel(nominal_period_ns=stamper.period_ns)
+                self._note_lost(watch.check(frame.host_ns))
+                if watch.survivor is None:
+                    pairs = stamper.push(side, frame, frame.host_ns)
+                else:
+                    pairs = []
+                    if side == watch.survivor:
+                        # the survivor's clock model goes on: its frames keep one timeline
+                        t = stamper.clocks[side].update(frame.host_ns, frame.device_ts_ns,
+                                                        frame.device_frame_id)
+                        self._write_single(index, side, frame, t)
+                        mono_stream.tick()
+                        index += 1
             for p in pairs:
                 self._write_pair(index, p)
                 stream.tick()
                 index += 1
             self.counters.unpaired = stamper.unpaired()
+
+    def _note_lost(self, sides: list[str]) -> None:
+        for side in sides:
+            other = self.watch.survivor
+            log.warning("camera %s: lost (nothing for %.1f s); %s", side,
+                        self.cfg.cameras.lost_after_s,
+                        f"going on with the {other} camera alone" if other
+                        else "no camera delivers")
 
     def _write_pair(self, index: int, p: Any) -> None:
         left, right = p.left, p.right
@@ -217,11 +260,25 @@ class Acquisition:
                         right_seq=right.seq, t_left_mono_ns=p.left_ns, t_right_mono_ns=p.right_ns,
                         t_wall_ns=self.wall_ns(p.time_ns))
         self.counters.pairs += 1
+        self._remember_frame_id(index, left.device_frame_id)
+        self.publisher.record_pair(index, p)
+
+    def _write_single(self, index: int, side: str, frame: Any, t_ns: int) -> None:
+        """One camera's frame alone into the ring (its capture time ``t_ns`` in both time
+        fields, so the window's times are that camera's)."""
+        images = {"left": None, "right": None, side: frame.image}
+        self.ring.write(images["left"], images["right"], pair_index=index,
+                        left_seq=frame.seq if side == "left" else -1,
+                        right_seq=frame.seq if side == "right" else -1,
+                        t_left_mono_ns=t_ns, t_right_mono_ns=t_ns, t_wall_ns=self.wall_ns(t_ns))
+        self.counters.single_frames += 1
+        self._remember_frame_id(index, frame.device_frame_id if side == "left" else None)
+
+    def _remember_frame_id(self, index: int, frame_id: int | None) -> None:
         with self._pair_lock:
-            self._pair_frame_ids[index] = left.device_frame_id
+            self._pair_frame_ids[index] = frame_id
             while len(self._pair_frame_ids) > 4 * self.cfg.ring.capacity + 64:
                 self._pair_frame_ids.popitem(last=False)
-        self.publisher.record_pair(index, p)
 
     def start_anemometer(self, history: Any, mounting: Any) -> Any:
         """Create the anemometer back end and start its reader thread (returned)."""
@@ -259,6 +316,28 @@ class Acquisition:
             "sonic_temperature_c": _finite_or_none(sample.sonic_temperature),
             "status": sample.status_code, "valid": bool(sample.valid),
         }, sample.host_ns)
+
+
+def camera_watch(cfg: Config, wall_ns: Callable[[int], int]) -> CameraWatch:
+    """The :class:`CameraWatch` of the configured cameras (``cameras.lost_after_s``)."""
+    present = {s: getattr(cfg.cameras, s) is not None for s in SIDES}
+    return CameraWatch(present, cfg.cameras.lost_after_s, wall_ns)
+
+
+def nominal_frame_rate_hz(cfg: Config) -> float:
+    """The frame rate of the reference camera: a replayed folder's own (its
+    ``labels.json`` ``frame_interval_s``, e.g. GasVid at 1 frame/s) unless the back end's
+    ``fps`` option or nothing says otherwise, else ``frame_rate_hz``."""
+    from drivers.camera.replay_folder import folder_frame_rate_hz
+
+    cam = cfg.cameras.left
+    assert cam is not None
+    if cam.backend == "replay_folder" and "fps" not in cam.options and "path" in cam.options:
+        own = folder_frame_rate_hz(cam.options["path"])
+        if own is not None:
+            return own
+    return float(cam.options.get("fps", cam.frame_rate_hz)) if cam.backend in (
+        "replay_folder", "simulated") else cam.frame_rate_hz
 
 
 def _finite_or_none(x: Any) -> float | None:

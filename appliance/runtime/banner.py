@@ -29,7 +29,8 @@ def announce_end(app: Any) -> None:
         f"processed {c.results} ({c.results / elapsed:.1f}/s, {100 * share:.0f} %, "
         f"{100 * c.cold_results / max(c.results, 1):.0f} % of them started cold), "
         f"skipped {c.skipped_pairs} ({c.skipped_pairs / elapsed:.1f}/s), "
-        f"failed {c.result_errors}, wind samples {c.wind_samples}\n")
+        f"failed {c.result_errors}, wind samples {c.wind_samples}"
+        f"{camera_words(app)}\n")
     where = app.stage_times.describe()
     if where is not None:
         sys.stderr.write(f"ogiflow: {where}\n")
@@ -64,6 +65,23 @@ def announce_end(app: Any) -> None:
             f"ogiflow: simulated release rate {true:.2f} g/s ({true * 3.6:.3f} kg/h), "
             f"measured {measured:.2f} g/s ({measured * 3.6:.3f} kg/h), error "
             f"{'n/a' if err is None else f'{100 * err:+.1f} %'}\n")
+
+
+def camera_words(app: Any) -> str:
+    """``, degraded 40 s (right camera lost 1x; 1200 frames of one camera)`` when a
+    camera of the pair was lost, ``, single camera`` at a single-camera site."""
+    acq = app.acquisition
+    if acq is None:
+        return ""
+    watch = acq.watch
+    c = app.counters
+    if watch.mode == "single_camera":
+        return f", single camera ({c.single_frames} frames, {c.single_results} processed)"
+    lost = [f"{s} camera lost {watch.losses(s)}x" for s in ("left", "right")
+            if watch.losses(s)]
+    return (f", degraded {watch.degraded_s(time.monotonic_ns()):.0f} s"
+            f" ({'; '.join(lost) or 'no camera lost'}; {c.single_frames} frames of one "
+            f"camera, {c.single_results} of them processed)")
 
 
 def line_of_sight_words(est: RateEstimate) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 
@@ -20,8 +21,10 @@ def health_counters(app: Any) -> dict[str, int]:
         "skipped_pairs": c.skipped_pairs, "cold_results": c.cold_results,
         "frame_queue_drops": c.frame_queue_drops,
         "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
-        "wind_samples": c.wind_samples,
+        "wind_samples": c.wind_samples, "single_camera_frames": c.single_frames,
     }
+    if app.acquisition is not None:
+        out["degraded_s"] = int(app.acquisition.watch.degraded_s(time.monotonic_ns()))
     if app.recorder is not None:
         rs = app.recorder.stats()
         out["recorder_drops"] = int(rs.messages_dropped)

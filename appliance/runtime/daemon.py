@@ -43,7 +43,7 @@ from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, emission_setup
-from processing.chain import ChainParameters, StereoGeometry
+from processing.chain.driver import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -80,8 +80,11 @@ class Appliance:
         self.pool: Any = None
         self.site: SimulatedSite | None = None
         self.acquisition: Any = None
+        self.watch: Any = None  # which cameras deliver (runtime.degraded.CameraWatch)
         self.history: Any = None
         self.geometry: StereoGeometry | None = None
+        #: (W, H) of the images (the ring's slots, the zones).
+        self.image_size: tuple[int, int] = (0, 0)
         self.live_url: str | None = None
         #: Faults that end the run with exit code 1 (a thread died, files not finalised).
         self.failures: list[str] = []
@@ -99,13 +102,17 @@ class Appliance:
 
     # ------------------------------------------------------------------ set-up
 
-    def _geometry(self) -> StereoGeometry:
+    def _geometry(self) -> StereoGeometry | None:
+        """The stereo geometry (calibration, else the simulated scene's cameras); None at a
+        single-camera site without either (the single-camera chain needs none)."""
         from processing.calibration import load_calibration
 
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.site is not None and self.site.truth is not None:
             return StereoGeometry.from_synthetic_camera(self.site.truth.camera)
+        if self.cfg.cameras.right is None:
+            return None
         raise ValueError(
             "calibration: a stereo calibration file is required for real cameras "
             "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
@@ -130,7 +137,8 @@ class Appliance:
             log.warning("processing of pairs %s failed: %s", res.pair_indices, res.error)
         elif self.publisher.publish(res) is not None:
             self.counters.results += 1
-            self.counters.cold_results += not res.warm
+            self.counters.cold_results += not res.warm and res.single_camera is None
+            self.counters.single_results += res.single_camera is not None
 
     def _truth_for(self, pair_index0: int) -> np.ndarray | None:
         """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""
@@ -191,13 +199,13 @@ class Appliance:
         simulated scene (the configured one, cached) and run the chain once on its first
         triple, which compiles numba's kernels into their on-disk cache. Opens no device.
         Returns what it did, for the user."""
-        from processing.chain import ChainState, compute_scene_flow
+        from processing.chain.driver import ChainState, compute_scene_flow
         from processing.synthetic import read_frame, read_sequence_meta
 
         start = time.monotonic()
         self._prepare(full_scene=True)
         done = []
-        if self.site is not None and self.site.folder is not None:
+        if self.site is not None and self.site.folder is not None and self.geometry is not None:
             done.append(f"simulated scene cached in {self.site.folder}")
             meta = read_sequence_meta(self.site.folder)
             f = [read_frame(self.site.folder, i, meta) for i in range(3)]
@@ -210,13 +218,17 @@ class Appliance:
 
     def _prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
+        from appliance.runtime.acquisition import camera_watch
         from appliance.runtime.health import HealthMonitor
         from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+        from appliance.runtime.single_camera import probe_image_size
         from drivers.anemometer.history import WindHistory
         from drivers.anemometer.mounting import Mounting
 
         cfg = self.cfg
         self.health = HealthMonitor(cfg.health.stall_s)
+        self.watch = camera_watch(cfg, self.wall_ns)
+        self.health.watch_cameras(self.watch)  # the first status already says the mode
         self.notifier = SdNotifier()
         period = watchdog_period_s() if cfg.health.watchdog else None
         self.watchdog = Watchdog(self.notifier, period, cfg.health.stall_s) if period else None
@@ -228,7 +240,11 @@ class Appliance:
         self.site = SimulatedSite(cfg, self._mounting.rotation)
         self.site.prepare(full=full_scene)
         self.geometry = self._geometry()
-        defaults = self.site.chain_defaults(self.geometry.camera_constant, self.geometry.baseline)
+        self.image_size = (self.geometry.image_size if self.geometry is not None
+                           else probe_image_size(cfg, self.site))  # a single-camera site
+        defaults = ({} if self.geometry is None else
+                    self.site.chain_defaults(self.geometry.camera_constant,
+                                             self.geometry.baseline))
         self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
@@ -250,8 +266,8 @@ class Appliance:
                 log.warning("recovered %s after a crash", rep)
         cal_text = Path(cfg.calibration).read_text() if cfg.calibration is not None else None
         metadata = file_metadata(cfg, cal_text)
-        assert self.geometry is not None
-        metadata.update(processing_metadata(self.geometry, self.params))
+        if self.geometry is not None:
+            metadata.update(processing_metadata(self.geometry, self.params))
         if self.emission is not None:  # replay computes the rate as this run did
             metadata["emission"] = {"json": self.emission.to_json()}
         if rc.split:
@@ -278,9 +294,9 @@ class Appliance:
         """The shared-memory ring, the worker processes and the thread that takes results."""
         from appliance.runtime.pool import WorkerPool
 
-        assert self.geometry is not None
-        self.pool = WorkerPool(self.cfg, self.geometry, self.params, self.emission,
-                               self._handle_result, self.counters).start(stack, self._spawn)
+        self.pool = WorkerPool(self.cfg, self.geometry, self.image_size, self.params,
+                               self.emission, self._handle_result,
+                               self.counters).start(stack, self._spawn)
         self.ring = self.pool.ring
         self.publisher.fields_wanted = self.pool.fields_wanted
         stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
@@ -289,12 +305,14 @@ class Appliance:
         self.peak_rss_mb = [peak_rss_mb(None), *self.pool.worker_peak_rss_mb()]
 
     def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
+        from appliance.runtime.acquisition import nominal_frame_rate_hz
         from appliance.runtime.monitor import monitor_from_config
 
-        assert self.geometry is not None and self.site is not None
-        return monitor_from_config(self.cfg, self.geometry.image_size, stack, live=self.live,
+        assert self.site is not None
+        return monitor_from_config(self.cfg, self.image_size, stack, live=self.live,
                                    on_event=self._on_event,
-                                   true_rate_g_s=self.site.shown_true_rate_g_s())
+                                   true_rate_g_s=self.site.shown_true_rate_g_s(),
+                                   nominal_fps=nominal_frame_rate_hz(self.cfg))
 
     def _on_event(self, kind: str, event: dict[str, Any]) -> None:
         """A leak event changed: record it, and keep its raw frames as a clip."""
@@ -340,13 +358,14 @@ class Appliance:
         self.acquisition = Acquisition(
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
-            watchdog=self.watchdog)
+            watchdog=self.watchdog, watch=self.watch)
         self.acquisition.sonic_k = self.pool.sonic_k
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)
         self._spawn(self.acquisition.pairing_loop, "pairing")
         for side in SIDES:
-            self._spawn(self.acquisition.camera_loop, f"camera-{side}", side)
+            if getattr(self.cfg.cameras, side) is not None:
+                self._spawn(self.acquisition.camera_loop, f"camera-{side}", side)
         stack.callback(self._join_acquisition)
 
     # ------------------------------------------------------------------ teardown
@@ -410,3 +429,4 @@ class Appliance:
         from appliance.runtime.counters import health_counters
 
         return health_counters(self)
+

@@ -30,6 +30,7 @@ __all__ = [
     "StreamCounter",
     "StreamStats",
     "alarms",
+    "camera_words",
     "disk_free_source",
     "live_sink",
     "log_sink",
@@ -120,6 +121,11 @@ class HealthSnapshot:
     counters: dict[str, int] = field(default_factory=dict)
     gauges: dict[str, float | None] = field(default_factory=dict)
     stalled: bool = False
+    #: ``stereo``, ``degraded`` (a camera of the pair lost) or ``single_camera``.
+    mode: str = "stereo"
+    #: Per camera: ``configured``, ``lost``, ``lost_since_wall_ns`` (UNIX ns of its last
+    #: frame before the loss; None while it delivers).
+    cameras: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain dict for JSON (``appliance.recording.schemas.HEALTH``)."""
@@ -155,6 +161,7 @@ class HealthMonitor:
         self._counters: dict[str, int] = {}
         self._counter_sources: list[Callable[[], Mapping[str, int]]] = []
         self._gauge_sources: list[Callable[[], Mapping[str, float | None]]] = []
+        self._cameras: Any = None
         self._lock = threading.Lock()
 
     def stream(self, name: str) -> StreamCounter:
@@ -179,6 +186,10 @@ class HealthMonitor:
     def add_gauges(self, source: Callable[[], Mapping[str, float | None]]) -> None:
         """Register a callable returning gauges (e.g. ring occupancy, disk free)."""
         self._gauge_sources.append(source)
+
+    def watch_cameras(self, watch: Any) -> None:
+        """Report which cameras deliver (a :class:`~appliance.runtime.degraded.CameraWatch`)."""
+        self._cameras = watch
 
     def last_frame_age(self, now: float) -> float | None:
         """Seconds since the newest frame of any camera stream (None: none yet)."""
@@ -212,9 +223,32 @@ class HealthMonitor:
                     snap.gauges[k] = None if v is None or not math.isfinite(v) else float(v)
             except Exception as exc:
                 log.warning("health gauge source %r failed: %s", src, exc)
+        if self._cameras is not None:
+            snap.mode, snap.cameras = self._cameras.mode, self._cameras.status()
         age = self.last_frame_age(now)
         snap.stalled = (now - self._start if age is None else age) > self.stall_s
         return snap
+
+
+def camera_words(snap: HealthSnapshot) -> list[str]:
+    """``DEGRADED: right camera lost since 01:02:03 UTC, single-camera chain on the left``
+    while a camera of the pair is lost (empty otherwise)."""
+    import datetime
+
+    if snap.mode != "degraded":
+        return []
+    out = []
+    alive = [s for s, c in snap.cameras.items() if c.get("configured") and not c.get("lost")]
+    for side, c in sorted(snap.cameras.items()):
+        if not c.get("lost"):
+            continue
+        since = c.get("lost_since_wall_ns")
+        when = "" if since is None else " since " + datetime.datetime.fromtimestamp(
+            since / 1e9, datetime.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
+        rest = (f", single-camera chain on the {alive[0]}" if len(alive) == 1
+                else ", no camera delivers")
+        out.append(f"DEGRADED: {side} camera lost{when}{rest}")
+    return out
 
 
 def alarms(snap: HealthSnapshot) -> list[str]:
@@ -222,6 +256,7 @@ def alarms(snap: HealthSnapshot) -> list[str]:
     out = []
     if snap.stalled:
         out.append("STALLED: no frames")
+    out.extend(camera_words(snap))
     if snap.counters.get("recording_paused"):
         out.append("RECORDING PAUSED (write error; see log)")
     for name, s in sorted(snap.streams.items()):
@@ -233,6 +268,8 @@ def alarms(snap: HealthSnapshot) -> list[str]:
 def status_line(snap: HealthSnapshot) -> str:
     """One short human line (systemd STATUS=, journal): alarms first, then rates."""
     parts = alarms(snap)
+    if snap.mode == "single_camera":
+        parts.append("single camera")
     for name, s in sorted(snap.streams.items()):
         drops = f" ({s.drops} lost)" if s.drops else ""
         parts.append(f"{name} {s.rate_hz:.1f}/s{drops}")
@@ -339,14 +376,15 @@ def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
 def log_sink(logger: logging.Logger = log, every: int = 10) -> Callable[[HealthSnapshot], None]:
     """Sink writing :func:`status_line` to the log (journald) every ``every`` snapshots, and at
     once whenever :func:`alarms` starts or stops having something to say."""
-    state = {"n": 0, "stalled": False}
+    state: dict[str, Any] = {"n": 0, "stalled": False, "mode": None}
 
     def sink(snap: HealthSnapshot) -> None:
         line = status_line(snap)
-        # At once when something starts or stops being wrong (an outage, a paused recording).
+        # At once when something starts or stops being wrong (an outage, a paused recording)
+        # and when a camera is lost or back (the mode changes).
         alarm = bool(alarms(snap))
-        changed = alarm != state["stalled"]
-        state["stalled"] = alarm
+        changed = alarm != state["stalled"] or snap.mode != state["mode"]
+        state["stalled"], state["mode"] = alarm, snap.mode
         if changed or state["n"] % every == 0:
             (logger.warning if alarm else logger.info)("health: %s", line)
         state["n"] += 1

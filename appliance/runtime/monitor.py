@@ -23,6 +23,7 @@ from appliance.runtime.events import (
     LeakEvent,
     zone_mask,
 )
+from appliance.runtime.health import camera_words
 from processing.emission.rate import FrameRate, RateEstimate
 
 log = logging.getLogger("ogiflow.monitor")
@@ -45,13 +46,16 @@ class LeakMonitor:
         Receives :class:`OperatorStatus` items.
     true_rate_g_s : float or None
         Simulated runs: the simulator's release rate, shown beside the measurement.
+    nominal_fps : float
+        The cameras' frame rate (a camera below a share of it is named as slow).
     """
 
     def __init__(self, events: EventConfig, image_size: tuple[int, int], *,
                  on_event: Callable[[str, dict[str, Any]], None] | None = None,
                  alarm_sinks: Sequence[Any] = (), live: Any = None,
-                 true_rate_g_s: float | None = None) -> None:
+                 true_rate_g_s: float | None = None, nominal_fps: float = 30.0) -> None:
         w, h = image_size
+        self.nominal_fps = nominal_fps
         self.detector = LeakDetector(events)
         self.zones = zone_mask((h, w), events.watch_zones, events.ignore_zones)
         self.evidence = EvidenceStream(self.zones)
@@ -105,12 +109,13 @@ class LeakMonitor:
 
     def on_health(self, snapshot: Any) -> None:
         """One health snapshot (health reporter thread)."""
-        words = health_words(snapshot)
+        words = camera_words(snapshot) + health_words(snapshot, self.nominal_fps)
         with self._lock:
             self._health = words
         for sink in self.sinks:
             sink.status({"health": words, "t_wall_ns": int(snapshot.t_wall_ns),
                          "leak": self.detector.current is not None,
+                         "mode": snapshot.mode, "cameras": snapshot.cameras,
                          "counters": dict(snapshot.counters)})
         self.push_status(int(snapshot.t_wall_ns))
 
@@ -161,7 +166,8 @@ class LeakMonitor:
 
 def monitor_from_config(cfg: Any, image_size: tuple[int, int], stack: Any, *, live: Any,
                         on_event: Callable[[str, dict[str, Any]], None],
-                        true_rate_g_s: float | None) -> LeakMonitor:
+                        true_rate_g_s: float | None, nominal_fps: float = 30.0
+                        ) -> LeakMonitor:
     """The daemon's monitor from the ``events`` and ``alarms`` config sections; alarm sinks
     are started here and closed by ``stack`` (after the monitor has ended an open event,
     when the monitor's own close is registered after this call)."""
@@ -179,4 +185,5 @@ def monitor_from_config(cfg: Any, image_size: tuple[int, int], stack: Any, *, li
         stack.callback(sink.close)
         sinks.append(sink)
     return LeakMonitor(events, image_size, on_event=on_event,
-                       alarm_sinks=sinks, live=live, true_rate_g_s=true_rate_g_s)
+                       alarm_sinks=sinks, live=live, true_rate_g_s=true_rate_g_s,
+                       nominal_fps=nominal_fps)

@@ -23,7 +23,7 @@ from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.workers import WorkerResult, worker_main
-from processing.chain import ChainParameters, StereoGeometry
+from processing.chain.driver import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -38,8 +38,10 @@ class WorkerPool:
     ----------
     cfg : Config
         Validated configuration (``ring.capacity``, ``processing.workers``/``enabled``).
-    geometry : StereoGeometry
-        Camera geometry; its ``image_size`` (w, h) sizes the ring's slots.
+    geometry : StereoGeometry or None
+        Camera geometry (None at a single-camera site without a calibration).
+    image_size : (int, int)
+        (W, H) of the images: the ring's slots.
     params : ChainParameters
         Parameters of the scene-flow chain, the same for every worker.
     emission : Any
@@ -51,11 +53,13 @@ class WorkerPool:
         The run's counters (``worker_restarts``).
     """
 
-    def __init__(self, cfg: Config, geometry: StereoGeometry, params: ChainParameters,
-                 emission: Any, handle: Callable[[WorkerResult], None],
+    def __init__(self, cfg: Config, geometry: StereoGeometry | None,
+                 image_size: tuple[int, int], params: ChainParameters, emission: Any,
+                 handle: Callable[[WorkerResult], None],
                  counters: Counters) -> None:
         self.cfg = cfg
         self.geometry = geometry
+        self.image_size = image_size
         self.params = params
         self.emission = emission
         self._handle = handle
@@ -79,7 +83,7 @@ class WorkerPool:
         """
         from appliance.runtime.ring import PairRing
 
-        w, h = self.geometry.image_size
+        w, h = self.image_size
         self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
         self._mp = mp.get_context("spawn")

@@ -245,24 +245,28 @@ class ResultPublisher:
         import cv2
 
         wall = self.wall_ns(t1)
-        for side, img in (("left", res.diff_left), ("right", res.diff_right)):
+        # a single-camera result has its camera's I_diff (as diff_left) and no stereo fields
+        own = res.single_camera or "left"
+        for side, img in ((own, res.diff_left), ("right", res.diff_right)):
+            if img is None:
+                continue
             ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])
             if ok:
                 payload = schemas.compressed_image(jpg.tobytes(), wall, f"camera_{side}")
                 self.recorder.record(f"/cam/{side}/diff", schemas.COMPRESSED_IMAGE, payload,
                                      wall, t1)
-        grids = (
-            ("/sceneflow/flow", res.flow, ("u", "v")),
-            ("/sceneflow/disparity", np.stack([res.disparity, res.disparity_change], -1),
-             ("d", "d_change")),
-            ("/sceneflow/velocity", res.velocity, ("vx", "vy", "vz")),
-        )
+        frame_id = f"camera_{own}"
+        grids = [("/sceneflow/flow", res.flow, ("u", "v"))]
+        if res.disparity is not None and res.velocity is not None:
+            grids += [("/sceneflow/disparity",
+                       np.stack([res.disparity, res.disparity_change], -1), ("d", "d_change")),
+                      ("/sceneflow/velocity", res.velocity, ("vx", "vy", "vz"))]
         for topic, arr, names in grids:
             self.recorder.record(topic, schemas.GRID,
-                                 schemas.grid(arr, wall, "camera_left", names), wall, t1)
+                                 schemas.grid(arr, wall, frame_id, names), wall, t1)
         ok, png = cv2.imencode(".png", res.gas_mask.astype(np.uint8) * 255)
         if ok:
-            payload = schemas.compressed_image(png.tobytes(), wall, "camera_left", "png")
+            payload = schemas.compressed_image(png.tobytes(), wall, frame_id, "png")
             self.recorder.record("/sceneflow/mask", schemas.COMPRESSED_IMAGE, payload, wall, t1)
 
     def restart_rate_window(self) -> None:

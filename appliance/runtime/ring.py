@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_STRIDE", "META_DTYPE", "PairLease", "PairRing", "RingHandle", "RingStats"]
+__all__ = ["LEFT", "MAX_STRIDE", "META_DTYPE", "RIGHT", "PairLease", "PairRing", "RingHandle",
+           "RingStats"]
 
 #: Per-slot metadata (all int64; ns times are ``time.monotonic_ns()`` / UNIX ns).
 META_DTYPE = np.dtype([
@@ -42,7 +43,11 @@ META_DTYPE = np.dtype([
     ("t_left_mono_ns", "<i8"),
     ("t_right_mono_ns", "<i8"),
     ("t_wall_ns", "<i8"),
+    ("cameras", "<i8"),        # which images the slot holds: LEFT | RIGHT bits
 ])
+#: Bits of the ``cameras`` metadata: the slot holds the left / the right camera's image
+#: (a pair holds both; while a camera is lost, or at a single-camera site, only one).
+LEFT, RIGHT = 1, 2
 _META_FIELDS = tuple(n for n in META_DTYPE.names if n not in ("gen", "seq"))  # type: ignore[union-attr]
 _HEAD, _CLAIMED, _OVERWRITES = 0, 1, 2
 _PHASE_CLAIMED = 3  # words 3 .. 3 + MAX_STRIDE - 1: last window end taken per phase
@@ -203,28 +208,37 @@ class PairRing:
 
     # ------------------------------------------------------------------ writer
 
-    def write(self, left: np.ndarray, right: np.ndarray, **meta: int) -> int:
+    def write(self, left: np.ndarray | None, right: np.ndarray | None, **meta: int) -> int:
         """Copy one stereo pair into the next slot; never blocks. Returns its sequence number.
 
         Parameters
         ----------
         left, right
-            (H, W) arrays of the ring's shape and dtype.
+            (H, W) arrays of the ring's shape and dtype; one of them None for a frame of
+            one camera alone (the slot's ``cameras`` bits say which it holds; the other
+            image of the slot is left as it was). 8-bit frames are widened into a 16-bit
+            ring (the counts do not change).
         **meta
             Any of pair_index, left_seq, right_seq, t_left_mono_ns, t_right_mono_ns, t_wall_ns.
 
         Raises
         ------
         ValueError
-            Wrong image shape or dtype, or an unknown metadata field.
+            Wrong image shape or dtype, no image, or an unknown metadata field.
         """
+        if left is None and right is None:
+            raise ValueError("ring.write: no image")
         for side, img in (("left", left), ("right", right)):
-            if img.shape != self.shape or img.dtype != self.dtype:
+            if img is None:
+                continue
+            if img.shape != self.shape or not (img.dtype == self.dtype or (
+                    img.dtype == np.uint8 and self.dtype == np.uint16)):
                 raise ValueError(f"ring.write: {side} image is {img.shape} {img.dtype}, the ring "
                                  f"holds {self.shape} {self.dtype}")
         unknown = set(meta) - set(_META_FIELDS)
         if unknown:
             raise ValueError(f"ring.write: unknown metadata {sorted(unknown)}")
+        meta["cameras"] = (LEFT if left is not None else 0) | (RIGHT if right is not None else 0)
         seq = int(self._header[_HEAD])
         slot = seq % self.capacity
         if seq >= self.capacity:
@@ -233,8 +247,10 @@ class PairRing:
                 self._header[_OVERWRITES] += 1  # never part of a processed window's end
         m = self._meta
         m["gen"][slot] = 2 * seq + 1  # odd: being written
-        self._left[slot] = left
-        self._right[slot] = right
+        if left is not None:
+            self._left[slot] = left
+        if right is not None:
+            self._right[slot] = right
         m["seq"][slot] = seq
         for f in _META_FIELDS:
             m[f][slot] = int(meta.get(f, -1))

@@ -242,7 +242,7 @@ class SimulatedSite:
     @staticmethod
     def renders_scene(cfg: Config) -> bool:
         """True when a simulated camera needs the rendered scene (no explicit source)."""
-        return any(c.backend == "simulated" and "source" not in c.options
+        return any(c is not None and c.backend == "simulated" and "source" not in c.options
                    for c in (cfg.cameras.left, cfg.cameras.right))
 
     def _scene_wind(self, rotation: np.ndarray) -> tuple[float, float, float]:
@@ -317,6 +317,13 @@ class SimulatedSite:
     def camera_options(self, side: str, cam: CameraConfig) -> dict[str, object]:
         """Options of a camera back end, with the simulated camera's site defaults."""
         options = dict(cam.options)
+        if cam.backend == "replay_folder" and "fps" not in options:
+            # a folder that says its own frame rate (labels.json) is served at it
+            from drivers.camera.replay_folder import folder_frame_rate_hz
+
+            path = options.get("path")
+            if path is None or folder_frame_rate_hz(path) is None:
+                options["fps"] = cam.frame_rate_hz
         if cam.backend == "simulated":
             options.setdefault("side", side)
             options.setdefault("fps", cam.frame_rate_hz)

@@ -31,6 +31,8 @@ class StereoStamper:
     def __init__(self, frame_rate_hz: float, tolerance_s: float | None = None,
                  max_delay_s: float = 0.2) -> None:
         period = int(1e9 / frame_rate_hz)
+        #: Nominal frame period, ns.
+        self.period_ns = period
         self.pairer: StereoPairer[Any] = StereoPairer(
             period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9),
             max_delay_ns=int(max_delay_s * 1e9))

@@ -3,7 +3,7 @@
 Each worker is a separate process (both cores are used; numpy, numba and OpenCV release
 the GIL only partly) that attaches to the shared-memory ring, repeatedly claims the
 newest window of three consecutive pairs (t0, t1, t2), copies it out, and runs
-:func:`processing.chain.compute_scene_flow` - the same function replay, evaluation and
+:func:`processing.chain.driver.compute_scene_flow` - the same function replay, evaluation and
 benchmarks call. When processing falls behind, older windows are skipped and counted;
 acquisition and recording never wait for a worker. Results go back to the daemon through
 a multiprocessing queue as :class:`WorkerResult` (fields reduced to what the recorder and
@@ -32,7 +32,7 @@ import numpy as np
 
 from appliance.live import MAX_ARROWS
 from processing.calibration.radiometric import CharacteristicCurve
-from processing.chain import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
+from processing.chain.driver import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
 from processing.emission.estimator import (
     DEFAULT_GAS_TEMPERATURE_K,
     EmissionEstimator,
@@ -76,11 +76,14 @@ class WorkerResult:
     raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
     rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
     warm: bool = False  # the solvers started from the worker's previous triple
+    #: The camera of a single-camera result ("left"/"right"; its diff and raw frame travel
+    #: as ``diff_left``/``raw_left``, the image the zones and the operator see); None: stereo.
+    single_camera: str | None = None
 
     @property
     def has_fields(self) -> bool:
         """Whether the full fields came along (see :func:`pack_result`)."""
-        return self.velocity is not None
+        return self.flow is not None if self.single_camera else self.velocity is not None
 
 
 @dataclass(frozen=True)
@@ -235,7 +238,7 @@ def worker_main(
     ring_handle: Any,
     results: Any,
     stop: Any,
-    geometry: StereoGeometry,
+    geometry: StereoGeometry | None,
     params: ChainParameters,
     n_workers: int = 1,
     emission: EmissionSetup | None = None,
@@ -256,7 +259,8 @@ def worker_main(
     stop : multiprocessing.Event
         Set by the daemon to end the worker.
     geometry, params
-        Stereo geometry and chain parameters (see :mod:`processing.chain`).
+        Stereo geometry (None at a single-camera site without a calibration) and chain
+        parameters (see :mod:`processing.chain.driver`).
     n_workers : int
         How many workers share the stream (see the module docstring).
     emission : EmissionSetup or None
@@ -288,7 +292,11 @@ def worker_main(
     torn = 0
     undelivered = 0  # results the daemon did not take within a second (counted as skipped)
     trim = PeriodicTrim()
-    estimator = None if emission is None else emission.estimator(geometry)
+    from appliance.runtime.single_camera import SingleCameraWorker, window_camera
+
+    estimator = (None if emission is None or geometry is None
+                 else emission.estimator(geometry))
+    single = SingleCameraWorker(params)
     own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
         while not stop.is_set():
@@ -314,19 +322,31 @@ def worker_main(
                 done_mono_ns=0,
             )
             torn = undelivered = 0
+            camera = window_camera(meta)
             try:
-                res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
                 full = fields_wanted is None or bool(fields_wanted.value)
                 if full and fields_wanted is not None:
                     fields_wanted.value = 0  # two workers may both send: harmless
-                pack_result(res, base, raw_left=left[0], fields=full)
                 own += 1
-                if estimator is not None and emission is not None and (
-                        own % emission.every == 0):
-                    base.rate = emission_rate(estimator, left[1], res,
-                                              emission.temperature_k(sonic_k))
-                elif emission is not None:
-                    base.rate = NO_RADIOMETRY
+                rate_due = emission is not None and own % emission.every == 0
+                if camera is not None:
+                    tr = single(camera, left if camera == "left" else right, t_mono, base)
+                    pack_single(tr, base, camera, fields=full)
+                    if emission is not None:
+                        base.rate = single.rate(
+                            estimator if camera == "left" else None, emission,
+                            (left if camera == "left" else right)[1], tr, base.dt_s,
+                            sonic_k, rate_due)
+                else:
+                    if geometry is None:
+                        raise ValueError("a stereo pair at a site without stereo geometry")
+                    res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
+                    pack_result(res, base, raw_left=left[0], fields=full)
+                    if estimator is not None and emission is not None and rate_due:
+                        base.rate = emission_rate(estimator, left[1], res,
+                                                  emission.temperature_k(sonic_k))
+                    elif emission is not None:
+                        base.rate = NO_RADIOMETRY
             except ValueError as exc:  # bad frames: reported, the worker goes on
                 base.error = f"{type(exc).__name__}: {exc}"
             except Exception:
@@ -341,11 +361,30 @@ def worker_main(
         ring.close()
 
 
+def pack_single(tr: Any, base: WorkerResult, camera: str, *, fields: bool = True) -> None:
+    """Fill ``base`` with a single-camera triple (:class:`~appliance.runtime.single_camera.
+    MonoTriple`): gas mask and the flow at its pixels always, the flow, I_diff and the raw
+    frame with the fields; no disparity, no 3D velocity."""
+    n = int(tr.mask.sum())
+    flags = ["single_camera"] + ([] if camera == "left" else ["right_camera"])
+    base.single_camera = camera
+    base.summary = {"gas_pixel_count": n, "valid": False, "mean_velocity": None,
+                    "speed": None, "angles_deg": None, "c_usf": None, "flags": flags}
+    base.timings_ms = {**tr.timings_ms, "total": sum(tr.timings_ms.values())}
+    base.rejected_shifts = tr.rejected_shifts
+    base.gas_mask = tr.mask
+    base.gas_flow = tr.flow.reshape(-1, 2)[np.flatnonzero(tr.mask)]
+    if fields:
+        base.flow = tr.flow
+        base.diff_left = _to_u8(tr.diff)
+        base.raw_left = np.array(tr.raw, copy=True)
+
+
 def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[int, ...],
                           geometry: StereoGeometry, params: ChainParameters,
                           state: ChainState) -> SceneFlowResult:
     """Run the chain on (3, H, W) left/right stacks with host monotonic ns times."""
-    from processing.chain import compute_scene_flow
+    from processing.chain.driver import compute_scene_flow
 
     times = tuple(t / 1e9 for t in t_mono_ns)
     return compute_scene_flow(list(left), list(right), times, geometry, params, state)
@@ -379,5 +418,6 @@ def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
             # temperature (the renderer's plume is colder than the air around it).
             t_gas = float(rad["t_gas_k"])
     return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
-                                          background_frames=em.background_frames),
+                                          background_frames=em.background_frames,
+                                          typed_distance_m=em.single_camera_distance_m),
                          t_gas, curve, every=em.every)

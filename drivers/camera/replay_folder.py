@@ -5,6 +5,9 @@ Files are taken in name order. 16-bit images (PNG/TIFF) keep their counts (``Mon
 whose size or depth differs from the first image are skipped and counted
 (``stats.skipped``) with a warning naming the file.
 
+Frame rate: the ``fps`` option, else the folder's own: ``frame_interval_s`` of a
+``labels.json`` in it (GasVid footage: 1 frame per second), else 30 frames per second.
+
 Timestamps: frame ``i`` is stamped ``host_ns = t_start + i * period`` where ``t_start`` is
 the monotonic time of ``start()``; ``device_ts_ns = i * period`` is its time in the
 sequence. With ``pace=True`` ``grab`` waits until that time (recorded pace); with
@@ -14,6 +17,7 @@ timeline, so a left and a right folder replayed fast still pair frame by frame.
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
@@ -48,6 +52,23 @@ def read_mono(path: Path) -> np.ndarray | None:
     return image
 
 
+#: The folder file that may say the footage's frame interval (``frame_interval_s``, s).
+LABELS_FILE = "labels.json"
+
+
+def folder_frame_rate_hz(folder: str | Path) -> float | None:
+    """The frame rate a folder's ``labels.json`` gives (1 / ``frame_interval_s``), Hz;
+    None without one (or without a positive interval in it)."""
+    path = Path(folder) / LABELS_FILE
+    try:
+        interval = json.loads(path.read_text(encoding="utf-8")).get("frame_interval_s")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if isinstance(interval, (int, float)) and not isinstance(interval, bool) and interval > 0:
+        return 1.0 / float(interval)
+    return None
+
+
 class FolderReplayCamera(Camera):
     """Images of a folder delivered as frames.
 
@@ -55,8 +76,8 @@ class FolderReplayCamera(Camera):
     ----------
     path : str or Path
         The folder.
-    fps : float
-        Frame rate of the sequence.
+    fps : float or None
+        Frame rate of the sequence; None: the folder's own (module docstring).
     pattern : str
         Glob pattern within the folder (e.g. ``"left_*.png"``).
     pace : bool
@@ -72,7 +93,7 @@ class FolderReplayCamera(Camera):
     def __init__(
         self,
         path: str | Path,
-        fps: float = 30.0,
+        fps: float | None = None,
         *,
         pattern: str = "*",
         pace: bool = True,
@@ -81,6 +102,8 @@ class FolderReplayCamera(Camera):
     ) -> None:
         self.path = Path(path)
         super().__init__(label=label or self.path.name)
+        if fps is None:
+            fps = folder_frame_rate_hz(self.path) or 30.0
         if not fps > 0:
             raise ValueError(f"fps must be > 0, got {fps}")
         self.period_ns = round(1e9 / fps)
