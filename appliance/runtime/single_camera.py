@@ -3,11 +3,11 @@
 The first stages of the scene-flow chain (paper Sec. 4.2-4.4) on three consecutive frames
 of one camera: differential images (Eq. 2) with jitter removal and denoising
 (:func:`processing.preprocess.differential.preprocess_camera`), the flow between them
-(Eq. 5) and the level-set segmentation (Eq. 9). No stereo: no disparity, no 3D velocity; an emission rate
-only with a typed-in distance (:func:`single_camera_rate`). ``ogiflow eval detection`` and
-``ogiflow eval footage`` run it on folders of frames, the daemon's workers
-(:class:`SingleCameraWorker`) on a camera whose partner is lost and on single-camera sites:
-one path for both.
+(Eq. 5) and the level-set segmentation (Eq. 9). No stereo: no disparity, no 3D velocity;
+an emission rate only with a typed-in distance (:func:`single_camera_rate`).
+``ogiflow eval detection`` and ``ogiflow eval footage`` run it on folders of frames, the
+daemon's workers (:class:`SingleCameraWorker`) on a camera whose partner is lost and on
+single-camera sites: one path for both.
 """
 
 from __future__ import annotations
