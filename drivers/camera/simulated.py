@@ -20,6 +20,8 @@ Outage (fault injection, realtime only): with ``outage_after_s`` set, the camera
 that many seconds after the first ``open`` of a camera with the same label in this process,
 for ``outage_s`` seconds: ``grab`` raises :class:`CameraDisconnected` and ``open`` fails
 until it is back; frames exposed meanwhile are never delivered (the frame ids jump).
+:func:`vanish` starts such an outage on demand (a fault test that needs the outage at a
+given state of the daemon rather than at a given time).
 
 With ``realtime=True`` (the daemon) ``grab`` sleeps until each arrival and stamps the frame
 with ``time.monotonic_ns()``; with ``realtime=False`` it returns at once and stamps the
@@ -53,6 +55,17 @@ _PROCESS_EPOCH_NS = time.monotonic_ns()
 #: First open of each camera label in this process: outages are timed from it, so they
 #: span the new camera objects a reconnecting daemon creates.
 _FIRST_OPEN_NS: dict[str, int] = {}
+#: The outage window (monotonic ns, start and end) of each camera label in this process.
+_OUTAGE_NS: dict[str, tuple[int, int]] = {}
+
+
+def vanish(label: str, seconds: float) -> None:
+    """Make the realtime simulated camera(s) labelled ``label`` vanish now for ``seconds``
+    (fault injection; replaces any outage of that label set by ``outage_after_s``)."""
+    if not seconds > 0:
+        raise ValueError(f"seconds must be > 0, got {seconds!r}")
+    now = time.monotonic_ns()
+    _OUTAGE_NS[label] = (now, now + int(seconds * 1e9))
 
 
 @dataclass(frozen=True)
@@ -203,7 +216,6 @@ class SimulatedCamera(Camera):
                              f"{outage_after_s!r} and {outage_s!r}")
         self.side = side
         self._outage = (outage_after_s, outage_s)
-        self._outage_ns: tuple[int, int] | None = None
         self._source_spec = source
         self.timing = TimingModel(
             TimingParams(
@@ -229,12 +241,13 @@ class SimulatedCamera(Camera):
 
     def _open(self) -> None:
         after, length = self._outage
+        now = time.monotonic_ns()
         if after is not None and self.realtime:
-            now = time.monotonic_ns()
             t0 = _FIRST_OPEN_NS.setdefault(self.label, now) + int(after * 1e9)
-            self._outage_ns = (t0, t0 + int(length * 1e9))
-            if t0 <= now < self._outage_ns[1]:
-                raise CameraDisconnected(f"{self.label}: not found (simulated outage)")
+            _OUTAGE_NS.setdefault(self.label, (t0, t0 + int(length * 1e9)))
+        window = _OUTAGE_NS.get(self.label) if self.realtime else None
+        if window is not None and window[0] <= now < window[1]:
+            raise CameraDisconnected(f"{self.label}: not found (simulated outage)")
         self.source = load_source(self._source_spec)
         interval = self.source.frame_interval_s
         if interval is not None and abs(interval * self.timing.p.fps - 1.0) > 1e-3:
@@ -270,10 +283,11 @@ class SimulatedCamera(Camera):
         k, device_ns, arrival_rel, lost = self._next_event()
         arrival = self.epoch_ns + arrival_rel
         if self.realtime:
-            if self._outage_ns is not None and arrival >= self._outage_ns[0]:
+            window = _OUTAGE_NS.get(self.label)
+            if window is not None and window[0] <= arrival < window[1] + 1:
                 # The outage begins before this frame: wait for it like for a frame.
-                self._sleep_until(self._outage_ns[0], timeout)
-                if time.monotonic_ns() < self._outage_ns[1]:
+                self._sleep_until(window[0], timeout)
+                if time.monotonic_ns() < window[1]:
                     raise CameraDisconnected(f"{self.label}: connection lost (simulated "
                                              "outage)")
             self._sleep_until(arrival, timeout)
