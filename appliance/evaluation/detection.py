@@ -9,8 +9,10 @@ events (first and last frame, times, source, confidence). Two kinds of set:
 - a sequence written by ``ogiflow simulate`` (``meta.json`` + frames): the whole stereo
   chain, with the simulator's ground truth of where gas is.
 
-Frame times are ``N / fps``: gaps in the frame numbers are gaps in time, so the event logic
-sees separate runs as separate stretches of time.
+Frame times are ``N / fps`` (or ``N`` times the ``frame_interval_s`` of a set's
+``labels.json``): gaps in the frame numbers are gaps in time, so the event logic sees
+separate runs as separate stretches of time. The frame interval also tells the evidence
+whether the flow can follow the gas (:data:`appliance.runtime.evidence.FLOW_MAX_INTERVAL_S`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.footage import FootageSettings, find_sets, iter_mono_triples
+from appliance.evaluation.labelled import apparent_size
 from appliance.runtime.events import (
     EventConfig,
     EvidenceStream,
@@ -102,19 +105,54 @@ def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, i
 
 def detect_folder(name: str, frames: list[tuple[int, Path]], settings: DetectionSettings
                   ) -> dict[str, Any]:
-    """Events in one single-camera set (folder of ``*frame<N>`` images)."""
+    """Events in one single-camera set (folder of ``*frame<N>`` images).
+
+    A set with a ``labels.json`` (:mod:`appliance.evaluation.labelled`) takes its frame
+    interval from there instead of ``settings.fps`` and is scored against its labels (key
+    ``labelled`` of the report).
+    """
+    from appliance.evaluation.labelled import FrameState, load_labels, score_labelled
+    from appliance.runtime.occupancy import REGION_OCCUPANCY
+
+    labels = load_labels(frames[0][1].parent) if frames else None
+    interval = float(labels["frame_interval_s"]) if labels else 1.0 / settings.fps
     det = LeakDetector(settings.events)
     stream: EvidenceStream | None = None
     evidence = []
     alarms: dict[int, tuple[float, int]] = {}
+    states: list[FrameState] = []
+    why: dict[int, str] = {}
+    previous: tuple[int, np.ndarray] | None = None
     for tr in iter_mono_triples(name, frames, settings.footage):
-        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events))
-        ev = stream(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
+        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events),
+                                          frame_interval_s=interval)
+        ev = stream(tr.frame * interval, tr.frame, tr.mask, tr.flow)
         evidence.append(ev)
+        known = set(alarms)
         _feed(det, ev, alarms)
+        for new in set(alarms) - known:
+            why[new] = _why(ev)
+        cur = det.current
+        prev = previous[1] if previous is not None and previous[0] == tr.frame - 1 else None
+        states.append(FrameState(tr.frame, ev.t_s, None if cur is None else cur.id,
+                                 None if cur is None else cur.source_xy,
+                                 apparent_size(tr.raw, prev, ev.occupancy, REGION_OCCUPANCY)))
+        previous = (tr.frame, tr.raw)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
-    return _report(len(frames), evidence, det, settings.events, alarms)
+    report = _report(len(frames), evidence, det, settings.events, alarms)
+    if labels is not None:
+        report["labelled"] = score_labelled(report, states, why, labels)
+    return report
+
+
+def _why(ev: FrameEvidence) -> str:
+    """What the evidence said when an event was alarmed (reports of false events)."""
+    src = "none" if ev.source_xy is None else f"({ev.source_xy[0]:.0f}, {ev.source_xy[1]:.0f})"
+    if ev.occupancy is not None:
+        return (f"persistent region {ev.plume_px} px, apex {src}, peak occupancy "
+                f"{float(ev.occupancy.max()):.2f}")
+    return f"{ev.gas_pixels} gas px, coherence {ev.coherence:.2f}, source {src}"
 
 
 def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]:

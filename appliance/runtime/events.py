@@ -291,7 +291,8 @@ class LeakDetector:
         c, dt = self.cfg, ev.frame_interval_s or 0.0
         # the start window half as long again as the minimum duration, as configured (2, 3 s)
         return (max(c.min_duration_s, START_FRAMES * dt),
-                max(c.start_window_s, 1.5 * START_FRAMES * dt), max(c.end_window_s, END_FRAMES * dt))
+                max(c.start_window_s, 1.5 * START_FRAMES * dt),
+                max(c.end_window_s, END_FRAMES * dt))
 
     def _same_source(self, ev: FrameEvidence, ref: tuple[float, float]) -> bool:
         """Whether the frame's source is the reference source ``ref`` (px).
@@ -439,11 +440,16 @@ class LeakDetector:
     def _at_event_source(self, ev: FrameEvidence) -> FrameEvidence:
         """Slow footage: only the apex of a persistent plume in view counts towards the open
         event's source (the median of the newest :data:`SOURCE_WINDOW`): the apex of a plume
-        still building up lies downstream and moves up to the source within a minute."""
-        if ev.occupancy is None or ev.source_xy is None:
+        still building up lies downstream and moves up to the source within a minute. The
+        flow's coherence means nothing there: the occupancy around the source stands for it
+        in the event's confidence."""
+        if ev.occupancy is None:
             return ev
-        return ev if (ev.plume_px >= self.cfg.min_gas_pixels and not ev.on_border
-                      ) else replace(ev, source_xy=None)
+        cur = self.current
+        held = near_mean(ev.occupancy, cur.source_xy) if cur and cur.source_xy else 0.0
+        keep = (ev.source_xy is not None and ev.plume_px >= self.cfg.min_gas_pixels
+                and not ev.on_border)
+        return replace(ev, source_xy=ev.source_xy if keep else None, coherence=min(held, 1.0))
 
     def _close(self, ev: FrameEvidence, reason: str) -> LeakEvent:
         assert self.current is not None
