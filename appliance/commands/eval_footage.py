@@ -57,9 +57,9 @@ def register(root: argparse._SubParsersAction) -> None:
     p.add_argument("--figure", type=Path, help="write a PNG of one leak frame here")
     p.add_argument(
         "--figure-set",
-        default="1238",
+        default="",
         help="set for the figure: the first set whose name contains this text (default: the "
-        "GasVid clip at 9.8 m, whose minute of 959 g/h holds the leak frames)",
+        "first set)",
     )
     p.add_argument(
         "--figure-frame",
