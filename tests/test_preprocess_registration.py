@@ -14,7 +14,7 @@ from processing.preprocess.registration import (
     warp_translation,
 )
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "ogi" / "leak_seq"
+DATA = Path(__file__).resolve().parents[1] / "data" / "ogi" / "gasvid" / "1238"
 
 
 def _blob_scene(dx: float, dy: float, *, h: int = 120, w: int = 160, n: int = 120) -> np.ndarray:
@@ -44,8 +44,8 @@ def test_known_subpixel_shift_of_analytic_scene(shift: tuple[float, float]) -> N
 @pytest.mark.parametrize("k", [(3, -5), (-2, 2), (7, -9)])
 def test_known_subpixel_shift_of_real_gf320_frame(k: tuple[int, int]) -> None:
     """An area-integrating camera model over the real frame: supersample x8, shift, bin 8x8."""
-    frame = cv2.imread(str(DATA / "leak.frame3024.jpg"), cv2.IMREAD_GRAYSCALE)
-    assert frame is not None, "data/ogi/leak_seq/leak.frame3024.jpg missing"
+    frame = cv2.imread(str(DATA / "frame0600.jpg"), cv2.IMREAD_GRAYSCALE)
+    assert frame is not None, "data/ogi/gasvid/1238/frame0600.jpg missing"
     f = 8
     up = cv2.resize(frame.astype(np.float32), None, fx=f, fy=f, interpolation=cv2.INTER_CUBIC)
     m, h, w = 10 * f, 220, 300

@@ -14,7 +14,10 @@ Run the chain and the daemon's leak-event logic over every image set under --dat
 of consecutive single-camera frames named *frame<N>.jpg/png/tif (like data/ogi) and
 sequences written by `ogiflow simulate`. Reports per set the frames, the frames with gas
 (at least --min-gas-pixels segmented) and the events (first and last frame, why it ended,
-source, confidence). Frame times of folders are N / --fps.
+source, confidence). Frame times of folders are N / --fps; a folder with a labels.json
+(data/ogi/gasvid) takes its frame interval from there and is scored per release class:
+windows alarmed, false events and why they started, time to the first alarm, source error
+against the labelled box, apparent size and its rank correlation with the rate.
 """
 
 
@@ -27,7 +30,7 @@ def register(root: argparse._SubParsersAction) -> None:
     p.add_argument("--data", required=True, type=Path, metavar="DIR",
                    help="folder of image sets (or one simulated sequence)")
     p.add_argument("--json", type=Path, default=None, metavar="OUT",
-                   help="write {set: {frames, gas_frames, events, per_frame}} to OUT")
+                   help="write {set: {frames, gas_frames, events, per_frame[, labelled]}} to OUT")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of folder sets (30)")
     d = EventConfig()
     for name, typ in (("min_gas_pixels", int), ("min_coherence", float),
@@ -41,6 +44,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from appliance.evaluation.detection import DetectionSettings, evaluate_detection
+    from appliance.evaluation.labelled import format_labelled
     from appliance.runtime.events import EventConfig
 
     if not args.fps > 0:
@@ -53,6 +57,9 @@ def run(args: argparse.Namespace) -> int:
         evs = ", ".join(f"{e['start_frame']}-{e['end_frame']} ({e['end_reason']})"
                         for e in r["events"]) or "none"
         print(f"{name:<24} {r['frames']:>6} {r['gas_frames']:>10}  {evs}")
+    for name, r in report.items():
+        if "labelled" in r:
+            print("\n".join(format_labelled(name, r["labelled"])))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(report, indent=1, allow_nan=False) + "\n")

@@ -9,8 +9,10 @@ events (first and last frame, times, source, confidence). Two kinds of set:
 - a sequence written by ``ogiflow simulate`` (``meta.json`` + frames): the whole stereo
   chain, with the simulator's ground truth of where gas is.
 
-Frame times are ``N / fps``: gaps in the frame numbers are gaps in time, so the event logic
-sees separate runs as separate stretches of time.
+Frame times are ``N / fps`` (or ``N`` times the ``frame_interval_s`` of a set's
+``labels.json``): gaps in the frame numbers are gaps in time, so the event logic sees
+separate runs as separate stretches of time. The frame interval also tells the evidence
+whether the flow can follow the gas (:data:`appliance.runtime.evidence.FLOW_MAX_INTERVAL_S`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from appliance.evaluation.footage import FootageSettings, find_sets, iter_mono_triples
+from appliance.evaluation.labelled import FrameState, apparent_size, load_labels, score_labelled
 from appliance.runtime.events import (
     EventConfig,
     EvidenceStream,
@@ -30,6 +33,10 @@ from appliance.runtime.events import (
     LeakDetector,
     zone_mask,
 )
+from appliance.runtime.occupancy import REGION_OCCUPANCY
+from processing.chain.driver import ChainParameters, ChainState, StereoGeometry, compute_scene_flow
+from processing.synthetic import read_frame, read_sequence_meta
+from processing.synthetic.sequences import SyntheticStereoScene
 
 
 @dataclass(frozen=True)
@@ -102,24 +109,56 @@ def _feed(det: LeakDetector, ev: FrameEvidence, alarms: dict[int, tuple[float, i
 
 def detect_folder(name: str, frames: list[tuple[int, Path]], settings: DetectionSettings
                   ) -> dict[str, Any]:
-    """Events in one single-camera set (folder of ``*frame<N>`` images)."""
+    """Events in one single-camera set (folder of ``*frame<N>`` images).
+
+    A set with a ``labels.json`` (:mod:`appliance.evaluation.labelled`) takes its frame
+    interval from there instead of ``settings.fps`` and is scored against its labels (key
+    ``labelled`` of the report).
+    """
+
+    labels = load_labels(frames[0][1].parent) if frames else None
+    interval = float(labels["frame_interval_s"]) if labels else 1.0 / settings.fps
     det = LeakDetector(settings.events)
     stream: EvidenceStream | None = None
     evidence = []
     alarms: dict[int, tuple[float, int]] = {}
+    states: list[FrameState] = []
+    why: dict[int, str] = {}
+    previous: tuple[int, np.ndarray] | None = None
     for tr in iter_mono_triples(name, frames, settings.footage):
-        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events))
-        ev = stream(tr.frame / settings.fps, tr.frame, tr.mask, tr.flow)
+        stream = stream or EvidenceStream(_zones(tr.mask.shape, settings.events),
+                                          frame_interval_s=interval)
+        ev = stream(tr.frame * interval, tr.frame, tr.mask, tr.flow)
         evidence.append(ev)
+        known = set(alarms)
         _feed(det, ev, alarms)
+        for new in set(alarms) - known:
+            why[new] = _why(ev)
+        cur = det.current
+        prev = previous[1] if previous is not None and previous[0] == tr.frame - 1 else None
+        states.append(FrameState(tr.frame, ev.t_s, None if cur is None else cur.id,
+                                 None if cur is None else cur.source_xy,
+                                 apparent_size(tr.raw, prev, ev.occupancy, REGION_OCCUPANCY)))
+        previous = (tr.frame, tr.raw)
     if evidence:
         det.close(evidence[-1].t_s, evidence[-1].frame, "end of data")
-    return _report(len(frames), evidence, det, settings.events, alarms)
+    report = _report(len(frames), evidence, det, settings.events, alarms)
+    if labels is not None:
+        report["labelled"] = score_labelled(report, states, why, labels)
+    return report
+
+
+def _why(ev: FrameEvidence) -> str:
+    """What the evidence said when an event was alarmed (reports of false events)."""
+    src = "none" if ev.source_xy is None else f"({ev.source_xy[0]:.0f}, {ev.source_xy[1]:.0f})"
+    if ev.occupancy is not None:
+        return (f"persistent region {ev.plume_px} px, apex {src}, peak occupancy "
+                f"{float(ev.occupancy.max()):.2f}")
+    return f"{ev.gas_pixels} gas px, coherence {ev.coherence:.2f}, source {src}"
 
 
 def detect_sequence(folder: Path, settings: DetectionSettings) -> dict[str, Any]:
     """Events in one synthetic stereo sequence (``ogiflow simulate``), whole chain."""
-    from processing.synthetic import read_frame, read_sequence_meta
 
     meta = read_sequence_meta(folder)
     n = int(meta["n_frames"])
@@ -147,7 +186,6 @@ def detect_frames(frames: Iterable[Any], meta: dict[str, Any], settings: Detecti
         ``(t_s, frame, gas_mask, flow)`` of every processed triple: what the event logic
         sees, to replay it later with other rules (:func:`detect_fields`).
     """
-    from processing.chain import ChainState, StereoGeometry, compute_scene_flow
 
     if every < 1:
         raise ValueError(f"every must be >= 1, got {every}")
@@ -203,7 +241,6 @@ def sequence_parameters(meta: dict[str, Any], geometry: Any) -> Any:
     d0 = the disparity of twice the distance of the simulated volume's centre, and
     registration only on a textured background (a uniform one gives it nothing to lock on
     but the gas)."""
-    from processing.chain import ChainParameters
 
     sim = meta.get("simulation", {})
     origin = sim.get("volume_origin_m")
@@ -260,7 +297,6 @@ def simulated_frames(config: Any, every: int = 1) -> Iterator[Any]:
     frames of the processed triples (``index % every`` in 0, 1, 2) are rendered into
     camera images; nothing is written to disk, so hours of scene cost no space.
     """
-    from processing.synthetic.sequences import SyntheticStereoScene
 
     scene = SyntheticStereoScene(config)
     for k in range(config.n_frames):

@@ -1,13 +1,13 @@
 """Pre-processing, flow and gas segmentation on real OGI frames (``ogiflow eval footage``).
 
-Every subfolder of the data folder holding images named ``*frame<N>.<ext>`` (JPEG, PNG, TIFF;
-8 or 16 bit, one camera) is one set. Frames are ordered by N; only triples of consecutive
-frame numbers (N, N+1, N+2) are processed, so sets whose frames are not all consecutive are
-split into their consecutive runs (e.g. the ``nonleak`` set of ``data/ogi``: 0-18, 1536-1539,
-3019-3023). For each triple: differential images (Eq. 2) with jitter removal and Sobolev
-denoising (:func:`processing.preprocess.differential.preprocess_camera`, identity
-characteristic curve: the footage is uncalibrated counts), Brox flow between the two
-differential images (Eq. 5)
+Every folder under the data folder (at any depth, named by its path relative to it) holding
+images named ``*frame<N>.<ext>`` (JPEG, PNG, TIFF; 8 or 16 bit, one camera) is one set.
+Frames are ordered by N; only triples of consecutive frame numbers (N, N+1, N+2) are
+processed, so sets whose frames are not all consecutive are split into their consecutive
+runs (e.g. the clips of ``data/ogi/gasvid``: 20-79, 600-659).
+For each triple: differential images (Eq. 2) with jitter removal and Sobolev denoising
+(:func:`processing.preprocess.differential.preprocess_camera`, identity characteristic curve: the
+footage is uncalibrated counts), Brox flow between the two differential images (Eq. 5)
 and the level-set segmentation (Eq. 9). Reported per frame: the segmented gas fraction
 (gas pixels / all pixels) of I_diff(t0 = N), the gas/background activity ratio, the
 registration shifts and the median flow magnitude.
@@ -94,18 +94,20 @@ class FootageReport:
 
 
 def find_sets(data: Path) -> dict[str, list[tuple[int, Path]]]:
-    """Image sets under ``data``: {subfolder name: [(frame number, path), ...] sorted}."""
+    """Image sets under ``data``: {folder path relative to ``data``: [(frame number, path),
+    ...] sorted}, for every folder below ``data`` that holds frames (``data/ogi`` holds
+    ``gasvid/1237``, ...)."""
     if not data.is_dir():
         raise ValueError(f"--data {data} is not a directory")
     sets: dict[str, list[tuple[int, Path]]] = {}
-    for sub in sorted(p for p in data.iterdir() if p.is_dir()):
+    for sub in sorted(p for p in data.rglob("*") if p.is_dir()):
         frames = []
         for f in sub.iterdir():
             m = FRAME_NUMBER.search(f.name)
             if m and f.suffix.lower() in IMAGE_SUFFIXES:
                 frames.append((int(m.group(1)), f))
         if frames:
-            sets[sub.name] = sorted(frames)
+            sets[sub.relative_to(data).as_posix()] = sorted(frames)
     if not sets:
         raise ValueError(f"no image sets (subfolders with *frame<N>.jpg/png/tif) in {data}")
     return sets

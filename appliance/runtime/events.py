@@ -31,7 +31,17 @@ temporal evidence, in the spirit of continuous OGI monitoring products:
   trailing end pinned to the border for seconds;
 - *persistence with hysteresis*: an event starts when the positive frames cover at least
   ``start_fraction`` of the last ``start_window_s`` and have lasted ``min_duration_s``;
-  it ends when they cover less than ``end_fraction`` of the last ``end_window_s``.
+  it ends when they cover less than ``end_fraction`` of the last ``end_window_s``. Each
+  window holds at least a few frame intervals (:data:`START_FRAMES`, :data:`END_FRAMES`):
+  at one frame per second, 2 s are two frames, no evidence of persistence.
+
+Footage slower than the flow can follow (evidence with an ``occupancy`` map,
+:mod:`appliance.runtime.occupancy`) replaces the motion rules, which need a meaningful
+flow, by where gas stays: a frame is positive when the persistent plume covers at least
+``min_gas_pixels`` and its apex, in view, stays within ``max_source_shift_px`` of the
+candidate's sources; once an event is open, while the cells around its source stay occupied
+(:data:`~appliance.runtime.occupancy.HOLD_OCCUPANCY`): the plume is still anchored there,
+however much of the view it fills and whether or not the frame's own plume is segmented.
 
 The event's start is back-dated to its first positive frame, its end to its last.
 """
@@ -40,8 +50,7 @@ from __future__ import annotations
 
 import collections
 import itertools
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -56,9 +65,11 @@ from appliance.runtime.evidence import (
     moves,
     zone_mask,
 )
+from appliance.runtime.leak_event import SOURCE_WINDOW, LeakEvent, median_point
+from appliance.runtime.occupancy import HOLD_OCCUPANCY, near_mean
 
-__all__ = ["EventConfig", "EvidenceStream", "FrameEvidence", "LeakDetector", "LeakEvent",
-           "Polygon", "evidence_from_fields", "zone_mask"]
+__all__ = ["SOURCE_WINDOW", "EventConfig", "EvidenceStream", "FrameEvidence", "LeakDetector",
+           "LeakEvent", "Polygon", "evidence_from_fields", "zone_mask"]
 
 
 @dataclass(frozen=True)
@@ -104,99 +115,15 @@ ANCHOR_FRAMES = 5
 #: object, not a plume (start rule, LeakDetector._translating).
 TRANSLATION = 0.5
 
-#: Newest source positions whose median is an event's source (older ones are forgotten).
-SOURCE_WINDOW = 200
+#: Frame intervals the start window and the minimum duration hold at least.
+START_FRAMES = 8
+
+#: Frame intervals the end window holds at least.
+END_FRAMES = 20
 
 #: Share of the frames of the last ``min_duration_s`` in which the place of a candidate's
 #: source (one coverage cell around it) held gas, for the event to start.
 PERSISTENCE = 0.8
-
-
-@dataclass
-class LeakEvent:
-    """One leak event (what is reported over MQTT, recorded and shown)."""
-
-    id: int
-    start_t_s: float
-    start_frame: int
-    end_t_s: float | None = None
-    end_frame: int | None = None
-    end_reason: str = ""
-    source_xy: tuple[float, float] | None = None
-    source_xyz_m: tuple[float, float, float] | None = None
-    peak_rate_g_s: float | None = None
-    mean_rate_g_s: float | None = None
-    mean_velocity_m_s: tuple[float, float, float] | None = None
-    mean_wind_m_s: tuple[float, float, float] | None = None
-    confidence: float = 0.0
-    frames: int = 0
-    positive_frames: int = 0
-    # Running sums, not per-frame lists: a leak can last for weeks until it is repaired,
-    # and lists grew by ~450 bytes and a full mean per result (measured in a soak: the
-    # daemon's memory rose by tens of MB an hour while the simulated leak was on).
-    _sources: collections.deque[tuple[float, float]] = field(
-        default_factory=lambda: collections.deque(maxlen=SOURCE_WINDOW), repr=False)
-    _rate_n: int = field(default=0, repr=False)
-    _rate_sum: float = field(default=0.0, repr=False)
-    _velocity_n: int = field(default=0, repr=False)
-    _velocity_sum: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), repr=False)
-    _wind_n: int = field(default=0, repr=False)
-    _wind_sum: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0), repr=False)
-    _coherence_sum: float = field(default=0.0, repr=False)
-
-    @property
-    def ongoing(self) -> bool:
-        return self.end_t_s is None
-
-    def duration_s(self, now_s: float) -> float:
-        return (self.end_t_s if self.end_t_s is not None else now_s) - self.start_t_s
-
-    def add(self, ev: FrameEvidence, positive: bool) -> None:
-        """Account one frame of the event (statistics over positive frames only)."""
-        self.frames += 1
-        if not positive:
-            return
-        self.positive_frames += 1
-        if ev.source_xy is not None:
-            self._sources.append(ev.source_xy)
-            self.source_xy = _median_point(self._sources)
-        if ev.source_xyz_m is not None:
-            self.source_xyz_m = ev.source_xyz_m
-        if ev.rate_g_s is not None:
-            rate = float(ev.rate_g_s)
-            self._rate_n += 1
-            self._rate_sum += rate
-            self.peak_rate_g_s = rate if self.peak_rate_g_s is None else max(
-                self.peak_rate_g_s, rate)
-            self.mean_rate_g_s = self._rate_sum / self._rate_n
-        if ev.velocity_m_s is not None:
-            self._velocity_n += 1
-            self._velocity_sum = _add3(self._velocity_sum, ev.velocity_m_s)
-            self.mean_velocity_m_s = _scale3(self._velocity_sum, 1.0 / self._velocity_n)
-        if ev.wind_m_s is not None:
-            self._wind_n += 1
-            self._wind_sum = _add3(self._wind_sum, ev.wind_m_s)
-            self.mean_wind_m_s = _scale3(self._wind_sum, 1.0 / self._wind_n)
-        self._coherence_sum += float(ev.coherence)
-        # positive/frames times the mean coherence of the positive frames
-        self.confidence = float(self._coherence_sum / self.frames)
-
-    def to_dict(self) -> dict[str, object]:
-        """JSON-able view (no private lists)."""
-        return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
-
-
-def _median_point(points: Sequence[tuple[float, float]]) -> tuple[float, float]:
-    a = np.asarray(points, np.float64)
-    return float(np.median(a[:, 0])), float(np.median(a[:, 1]))
-
-
-def _add3(a: tuple[float, float, float], b: Sequence[float]) -> tuple[float, float, float]:
-    return a[0] + float(b[0]), a[1] + float(b[1]), a[2] + float(b[2])
-
-
-def _scale3(a: tuple[float, float, float], k: float) -> tuple[float, float, float]:
-    return a[0] * k, a[1] * k, a[2] * k
 
 
 class LeakDetector:
@@ -221,6 +148,9 @@ class LeakDetector:
         self._coverages: collections.deque[tuple[float, np.ndarray | None]] = (
             collections.deque())
         self._last_resultant: tuple[float, float] | None = None
+        # slow footage: (t, apex or None) of the frames of the last start window
+        self._apexes: collections.deque[tuple[float, tuple[float, float] | None]] = (
+            collections.deque())
         self._last_gas_t: float | None = None
         # (t, frame, source, mean flow) of the frames with coherent gas while no event is on
         self._track: collections.deque[
@@ -229,17 +159,50 @@ class LeakDetector:
     def positive(self, ev: FrameEvidence) -> bool:
         """Whether one frame, on its own, looks like a leak at the current source."""
         c = self.cfg
+        if ev.occupancy is not None:
+            return self._anchored(ev)
         if ev.gas_pixels < c.min_gas_pixels or ev.coherence < c.min_coherence:
             return False
         if ev.rate_g_s is not None and ev.rate_g_s < c.min_rate_g_s:
             return False
         ref = (self.current.source_xy if self.current is not None
-               else (_median_point(self._candidate_sources) if self._candidate_sources
+               else (median_point(self._candidate_sources) if self._candidate_sources
                      else None))
         if self.current is None and ev.on_border:
             # only the jumping end of a plume whose source is known and under this gas
             return ref is not None and ev.covers(ref)
         return ref is None or self._same_source(ev, ref)
+
+    def _anchored(self, ev: FrameEvidence) -> bool:
+        """Slow footage: the plume anchored at the source (module docstring)."""
+        if self.current is not None and self.current.source_xy is not None:
+            return near_mean(ev.occupancy, self.current.source_xy) >= HOLD_OCCUPANCY
+        return (ev.plume_px >= self.cfg.min_gas_pixels and ev.source_xy is not None
+                and not ev.on_border)
+
+    def _fixed_apex(self, now: float, window: float) -> bool:
+        """Slow footage: at least ``start_fraction`` of the frames of the last ``window``
+        have their plume's apex within ``max_source_shift_px`` of the median apex of the
+        positive ones (the plume is anchored; while a plume builds up, its apex first lies
+        downstream and then moves up to the source)."""
+        frames = [xy for t, xy in self._apexes if t > now - window]
+        points = [xy for xy in frames if xy is not None]
+        if not points:
+            return False
+        ref = median_point(points)
+        near = sum(np.hypot(x - ref[0], y - ref[1]) <= self.cfg.max_source_shift_px
+                   for x, y in points)
+        return near >= self.cfg.start_fraction * len(frames)
+
+    def windows(self, ev: FrameEvidence) -> tuple[float, float, float]:
+        """(min_duration_s, start_window_s, end_window_s) for the frame interval of ``ev``:
+        the configured seconds, or :data:`START_FRAMES` / :data:`END_FRAMES` frame
+        intervals when those are longer (slow footage)."""
+        c, dt = self.cfg, ev.frame_interval_s or 0.0
+        # the start window half as long again as the minimum duration, as configured (2, 3 s)
+        return (max(c.min_duration_s, START_FRAMES * dt),
+                max(c.start_window_s, 1.5 * START_FRAMES * dt),
+                max(c.end_window_s, END_FRAMES * dt))
 
     def _same_source(self, ev: FrameEvidence, ref: tuple[float, float]) -> bool:
         """Whether the frame's source is the reference source ``ref`` (px).
@@ -272,18 +235,18 @@ class LeakDetector:
         if ev.source_xy is None or not self._candidate_sources:
             return True
         return self._same_source(
-            ev, _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
+            ev, median_point(list(self._candidate_sources)[:ANCHOR_FRAMES]))
 
-    def _persistent(self, now: float) -> bool:
+    def _persistent(self, now: float, min_duration_s: float) -> bool:
         """Whether the place of the candidate's first sources (their median, one coverage
         cell around it) held gas in at least :data:`PERSISTENCE` of the frames of the last
         ``min_duration_s`` (module docstring)."""
         if not self._candidate_sources:
             return True
         # where the candidate was first seen: a running median would follow a moving object
-        ref = _median_point(list(self._candidate_sources)[:ANCHOR_FRAMES])
+        ref = median_point(list(self._candidate_sources)[:ANCHOR_FRAMES])
         spans = [cov for t, cov in self._coverages
-                 if t >= now - self.cfg.min_duration_s and cov is not None]
+                 if t >= now - min_duration_s and cov is not None]
         if not spans:
             return True  # evidence without gas maps (tests of the other rules)
         held = sum(covers(cov, ref) for cov in spans)
@@ -304,14 +267,14 @@ class LeakDetector:
         return bool(centroid[0] * self._last_resultant[0]
                     + centroid[1] * self._last_resultant[1] > 0.0)
 
-    def _translating(self, now: float) -> bool:
+    def _translating(self, now: float, min_duration_s: float) -> bool:
         """Whether the gas of the last ``min_duration_s`` moved as a whole: the median, over
         steps between consecutive frames, of the source's displacement along the mean flow
         divided by the flow's displacement is at least :data:`TRANSLATION` (module
         docstring). A median over at least 3 steps: a plume's upstream end that jumps once
         between two ends of its base, or one frame whose flow is near zero, does not decide.
         """
-        rows = sorted((r for r in self._track if r[0] >= now - self.cfg.min_duration_s),
+        rows = sorted((r for r in self._track if r[0] >= now - min_duration_s),
                       key=lambda r: r[1])
         ratios = []
         for (_, f0, s0, w0), (_, f1, s1, w1) in itertools.pairwise(rows):
@@ -324,7 +287,9 @@ class LeakDetector:
     def update(self, ev: FrameEvidence) -> list[tuple[str, LeakEvent]]:
         """Account one frame; return the transitions it caused."""
         c = self.cfg
-        if ev.gas_pixels >= c.min_gas_pixels and moves(ev):
+        slow = ev.occupancy is not None
+        min_duration, start_window, end_window = self.windows(ev)
+        if not slow and ev.gas_pixels >= c.min_gas_pixels and moves(ev):
             if (self.current is None and self._last_gas_t is not None
                     and ev.t_s - self._last_gas_t > GAP_S):
                 # gas after a gap is new evidence: a warm object walking out of the view and
@@ -341,24 +306,32 @@ class LeakDetector:
         if ev.resultant is not None:
             self._last_resultant = ev.resultant
         self._recent.append((ev.t_s, ev.frame, pos))
-        horizon = max(c.start_window_s, c.end_window_s, c.min_duration_s) + 1.0
+        if slow:
+            self._apexes.append((ev.t_s, ev.source_xy if pos else None))
+            while self._apexes and self._apexes[0][0] <= ev.t_s - start_window:
+                self._apexes.popleft()
+        horizon = max(start_window, end_window, min_duration) + 1.0
         while self._recent and self._recent[0][0] < ev.t_s - horizon:
             self._recent.popleft()
         if self.current is None:
             self._coverages.append((ev.t_s, ev.coverage))
-            while self._coverages and self._coverages[0][0] < ev.t_s - c.min_duration_s - 1.0:
+            while self._coverages and self._coverages[0][0] < ev.t_s - min_duration - 1.0:
                 self._coverages.popleft()
             if (ev.source_xy is not None and ev.flow_px is not None
                     and ev.gas_pixels >= c.min_gas_pixels and ev.coherence >= c.min_coherence):
                 self._track.append((ev.t_s, ev.frame, ev.source_xy, ev.flow_px))
-            while self._track and self._track[0][0] < ev.t_s - c.min_duration_s - 1.0:
+            while self._track and self._track[0][0] < ev.t_s - min_duration - 1.0:
                 self._track.popleft()
         out: list[tuple[str, LeakEvent]] = []
         if self.current is None:
-            frac, first = self._fraction(ev.t_s, c.start_window_s)
+            frac, first = self._fraction(ev.t_s, start_window)
+            # slow footage: the occupancy map is the persistence, and the flow that the
+            # translation rule reads means nothing there
             if (first is not None and frac >= c.start_fraction
-                    and ev.t_s - first >= c.min_duration_s and self._stayed(ev)
-                    and self._persistent(ev.t_s) and not self._translating(ev.t_s)):
+                    and ev.t_s - first >= min_duration
+                    and (self._fixed_apex(ev.t_s, start_window) if slow else
+                         (self._stayed(ev) and self._persistent(ev.t_s, min_duration)
+                          and not self._translating(ev.t_s, min_duration)))):
                 start_frame = next(f for t, f, p in self._recent if t == first and p)
                 self.current = LeakEvent(next(self._ids), first, start_frame)
                 self.current.add(ev, pos)
@@ -366,13 +339,27 @@ class LeakDetector:
             elif frac == 0.0:
                 self._forget_candidate()  # nothing recent
             return out
-        self.current.add(ev, pos)
-        frac, _ = self._fraction(ev.t_s, c.end_window_s)
-        if frac < c.end_fraction and ev.t_s - self.current.start_t_s >= c.end_window_s:
+        self.current.add(self._at_event_source(ev), pos)
+        frac, _ = self._fraction(ev.t_s, end_window)
+        if frac < c.end_fraction and ev.t_s - self.current.start_t_s >= end_window:
             out.append(("end", self._close(ev, "gas gone")))
         else:
             out.append(("update", self.current))
         return out
+
+    def _at_event_source(self, ev: FrameEvidence) -> FrameEvidence:
+        """Slow footage: only the apex of a persistent plume in view counts towards the open
+        event's source (the median of the newest :data:`SOURCE_WINDOW`): the apex of a plume
+        still building up lies downstream and moves up to the source within a minute. The
+        flow's coherence means nothing there: the occupancy around the source stands for it
+        in the event's confidence."""
+        if ev.occupancy is None:
+            return ev
+        cur = self.current
+        held = near_mean(ev.occupancy, cur.source_xy) if cur and cur.source_xy else 0.0
+        keep = (ev.source_xy is not None and ev.plume_px >= self.cfg.min_gas_pixels
+                and not ev.on_border)
+        return replace(ev, source_xy=ev.source_xy if keep else None, coherence=min(held, 1.0))
 
     def _close(self, ev: FrameEvidence, reason: str) -> LeakEvent:
         assert self.current is not None

@@ -11,9 +11,11 @@ seconds. The decisions are in :mod:`appliance.runtime.events`.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from appliance.runtime.occupancy import CELL_PX, OccupancyModel, persistent_plume
 
 Polygon = Sequence[tuple[float, float]]
 
@@ -74,6 +76,15 @@ class FrameEvidence:
         edge (the gas enters the view there), or the source within twice that.
     coverage : ndarray, shape (ceil(H / COVERAGE_CELL_PX), ceil(W / COVERAGE_CELL_PX)), bool
         Which cells of the image hold gas (to ask whether a source is still under gas).
+    frame_interval_s : float or None
+        Time between the camera frames the chain compared, s (None: not known, the chain's
+        own rate); the event logic's windows hold at least a few frames of it.
+    occupancy : ndarray (cells of :data:`appliance.runtime.occupancy.CELL_PX`) or None
+        Footage slower than :data:`FLOW_MAX_INTERVAL_S` only: the running occupancy map
+        (:class:`~appliance.runtime.occupancy.OccupancyModel`); ``source_xy`` is then the
+        apex of its persistent plume and ``on_border`` whether that apex is at the edge.
+    plume_px : int
+        With ``occupancy``: area of the persistent plume, px.
     """
 
     t_s: float
@@ -89,6 +100,9 @@ class FrameEvidence:
     flow_px: tuple[float, float] | None = None
     on_border: bool = False
     coverage: np.ndarray | None = field(default=None, compare=False, repr=False)
+    frame_interval_s: float | None = None
+    occupancy: np.ndarray | None = field(default=None, compare=False, repr=False)
+    plume_px: int = 0
 
     def covers(self, xy: tuple[float, float]) -> bool:
         """Whether this frame's gas lies within one coverage cell of ``xy`` (px)."""
@@ -118,6 +132,13 @@ GAP_S = 1.0
 #: frames of 5000-17000 "gas" pixels at 0.04 px per frame (a glitch of the chain; the
 #: walker moves at 1.4, the simulated plume at 6).
 MIN_FLOW_PX = 0.2
+
+#: Longest frame interval over which the chain's flow follows the gas, s: the differential
+#: images of the plume stay alike over a few camera frames at 30 Hz, not over a second (at
+#: 1 frame/s the mean flow of the segmented gas measured 30-90 px per frame in random
+#: directions). Slower footage is judged by where gas stays (:mod:`appliance.runtime.
+#: occupancy`) instead of how it moves.
+FLOW_MAX_INTERVAL_S = 0.2
 
 #: Gas this close to the image's edge among a frame's most upstream pixels means it enters
 #: the view there, px (start rule).
@@ -216,13 +237,20 @@ class EvidenceStream:
     gap_s : float
         After this long without gas the average restarts from the next frame's own
         direction, s.
+    frame_interval_s : float, optional
+        Time between the camera frames of one triple, s. Above :data:`FLOW_MAX_INTERVAL_S`
+        the evidence carries the occupancy map and its plume's apex as the source.
     """
 
     def __init__(self, zones: np.ndarray | None = None, tau_s: float = 3.0,
-                 gap_s: float = GAP_S) -> None:
+                 gap_s: float = GAP_S, frame_interval_s: float | None = None) -> None:
+
         self.zones = zones
         self.tau_s = tau_s
         self.gap_s = gap_s
+        self.frame_interval_s = frame_interval_s
+        self.occupancy = (OccupancyModel(frame_interval_s) if frame_interval_s is not None
+                          and frame_interval_s > FLOW_MAX_INTERVAL_S else None)
         self._mean: np.ndarray | None = None
         self._t: float | None = None
 
@@ -239,7 +267,10 @@ class EvidenceStream:
         if self._mean is not None and np.hypot(*self._mean) > 1e-6:
             direction = tuple(self._mean / np.hypot(*self._mean))
         ev = evidence_from_fields(t_s, frame, gas_mask, flow, self.zones,
-                                  direction=direction, **extra)  # type: ignore[arg-type]
+                                  direction=direction, frame_interval_s=self.frame_interval_s,
+                                  **extra)  # type: ignore[arg-type]
+        if self.occupancy is not None:
+            return self._anchored(ev, gas_mask)
         if ev.resultant is not None and moves(ev):
             r = np.asarray(ev.resultant)
             if self._mean is None or self._t is None:
@@ -249,3 +280,16 @@ class EvidenceStream:
                 self._mean = self._mean + max(a, 0.02) * (r - self._mean)
                 self._t = max(self._t, t_s)
         return ev
+
+    def _anchored(self, ev: FrameEvidence, gas_mask: np.ndarray) -> FrameEvidence:
+        """Slow footage: the evidence of the occupancy map (frame ``ev`` added)."""
+
+        assert self.occupancy is not None
+        mask = np.asarray(gas_mask, bool)
+        occ = self.occupancy.update(ev.t_s, mask if self.zones is None else mask & self.zones)
+        region, apex = persistent_plume(occ)
+        h, w = mask.shape
+        edge = apex is not None and min(apex[0], apex[1], w - 1 - apex[0],
+                                        h - 1 - apex[1]) < 2 * BORDER_PX
+        return replace(ev, source_xy=apex, on_border=bool(edge), occupancy=occ.copy(),
+                       plume_px=int(region.sum()) * CELL_PX * CELL_PX)

@@ -58,7 +58,9 @@ class LeakMonitor:
         self.nominal_fps = nominal_fps
         self.detector = LeakDetector(events)
         self.zones = zone_mask((h, w), events.watch_zones, events.ignore_zones)
-        self.evidence = EvidenceStream(self.zones)
+        # The cameras' frame interval picks the evidence for the footage's speed: flow at
+        # video rates, where gas stays (occupancy) for slow footage such as 1 frame/s.
+        self.evidence = EvidenceStream(self.zones, frame_interval_s=1.0 / nominal_fps)
         self.on_event = on_event
         self.sinks = list(alarm_sinks)
         self.live = live
