@@ -77,6 +77,9 @@ class EncodedFrame:
     t_capture_ns : int
         Capture time of the picture's frame, UNIX ns (what the page's frame age counts from).
     jpeg : bytes
+    t_result_ns : int
+        When its processed result reached the page (the appliance's clock), UNIX ns: the
+        age at that moment is the processing's share, the rest is the page's.
     width, height : int
         Picture size, px (the source marker's coordinates are in these pixels).
     """
@@ -85,12 +88,14 @@ class EncodedFrame:
     frame: int
     t_capture_ns: int
     jpeg: bytes
+    t_result_ns: int
     width: int
     height: int
 
     def notice(self) -> dict[str, Any]:
         """The ``frame`` message (no picture: the page fetches ``url``)."""
         return {"seq": self.seq, "frame": self.frame, "t_capture_ns": self.t_capture_ns,
+                "t_result_ns": self.t_result_ns,
                 "width": self.width, "height": self.height, "url": f"/frame/{self.seq}.jpg",
                 "bytes": len(self.jpeg)}
 
@@ -128,6 +133,7 @@ class PageHub:
         self._period_ns = int(1e9 / max_image_hz)
         self._cond = threading.Condition()
         self._frame: LiveFrame | None = None
+        self._frame_t_ns = 0
         self._status: OperatorStatus | None = None
         self._frames: collections.OrderedDict[int, EncodedFrame] = collections.OrderedDict()
         self._status_dict: dict[str, Any] | None = None
@@ -161,6 +167,7 @@ class PageHub:
             self._stats.frames_pushed += 1
             self._stats.frames_replaced += self._frame is not None
             self._frame = item
+            self._frame_t_ns = self.clock()
             self._cond.notify()
         return True
 
@@ -223,12 +230,13 @@ class PageHub:
                 if self._stop:
                     return
                 frame, self._frame = self._frame, None
+                t_result = self._frame_t_ns
                 status, self._status = self._status, None
             try:  # the status first: it is what the operator reads
                 if status is not None:
                     self._publish_status(status)
                 if frame is not None:
-                    self._publish_frame(frame)
+                    self._publish_frame(frame, t_result)
             except Exception as exc:  # a bad item must not end the page
                 with self._cond:
                     self._stats.errors += 1
@@ -244,7 +252,7 @@ class PageHub:
             self._stats.statuses += 1
         self._send("status", d)
 
-    def _publish_frame(self, f: LiveFrame) -> None:
+    def _publish_frame(self, f: LiveFrame, t_result_ns: int) -> None:
         assert f.raw_left is not None
         raw = np.asarray(f.raw_left)
         bgr = operator_bgr(raw, f.gas_mask, operator_arrows(f.pixels, f.velocity3d,
@@ -253,7 +261,7 @@ class PageHub:
         with self._cond:
             self._seq += 1
             t = f.raw_capture_ns if f.raw_capture_ns is not None else f.t_capture_ns
-            enc = EncodedFrame(self._seq, int(f.frame), int(t), jpeg,
+            enc = EncodedFrame(self._seq, int(f.frame), int(t), jpeg, int(t_result_ns),
                                int(raw.shape[1]), int(raw.shape[0]))
             self._frames[enc.seq] = enc
             while len(self._frames) > FRAMES_KEPT:

@@ -132,9 +132,11 @@ function showFrame(img, f) {
   img.dataset.testid = "picture";
   img.dataset.captureNs = String(f.t_capture_ns);
   img.dataset.seq = String(f.seq);
+  img.dataset.resultNs = String(f.t_result_ns);
   old.replaceWith(img);
   document.getElementById("overlay").setAttribute("viewBox", `0 0 ${f.width} ${f.height}`);
   $("frame-number").textContent = f.frame;
+  $("processing-age").textContent = ((f.t_result_ns - f.t_capture_ns) / 1e9).toFixed(2);
   shown = f;
   tick();
 }
