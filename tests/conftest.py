@@ -37,5 +37,7 @@ def scene_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 #: Config overrides of a small, coarse simulated scene (fast to render, still a real plume).
 # Whole-daemon tests read one set of files: the earlier single-folder recording layout (the
 # split retention layout has its own tests in test_retention.py).
+# The operator's page on any free port: daemons of tests running side by side (or a real
+# appliance on this machine) never collide on the default 8080.
 SMALL_SCENE = [("simulation.frames", 24), ("simulation.voxel_m", 0.12),
-               ("recording.split", False)]
+               ("recording.split", False), ("live.page.port", 0)]

@@ -64,10 +64,16 @@ class Subscriber:
         import paho.mqtt.client as mqtt
 
         self.messages: list[tuple[str, bytes, bool]] = []
+        #: UNIX time at which each of :attr:`messages` arrived.
+        self.arrived: list[float] = []
         subscribed = threading.Event()
         self._client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="test-sub")
-        self._client.on_message = lambda c, u, m: self.messages.append(
-            (m.topic, m.payload, bool(m.retain)))
+
+        def on_message(c, u, m) -> None:
+            self.arrived.append(time.time())
+            self.messages.append((m.topic, m.payload, bool(m.retain)))
+
+        self._client.on_message = on_message
         self._client.on_connect = lambda c, u, f, rc, p: c.subscribe(topic, qos=1)
         self._client.on_subscribe = lambda c, u, mid, rcs, p: subscribed.set()
         self._client.connect("127.0.0.1", port)

@@ -33,14 +33,20 @@ def test_status_events_and_summaries_arrive(broker: Broker) -> None:
                                summary_interval_s=0.0)).start()
     try:
         sink.status({"health": "ok"})
-        sink.event("start", {"id": 1, "rate_g_s": 2.5})
+        sink.event("start", {"id": 1, "t_wall_ns": 10**18, "start_t_s": 1e9,
+                             "rate_kg_h": 2.5})
+        for k in range(5):  # frames of the event with nothing new: held back
+            sink.event("update", {"id": 1, "t_wall_ns": 10**18 + k * 10**8,
+                                  "start_t_s": 1e9, "rate_kg_h": 2.5})
         sink.summary({"speed_m_s": 1.2})
-        sink.event("end", {"id": 1, "end_reason": "gas gone"})
+        sink.event("end", {"id": 1, "t_wall_ns": 10**18 + 10**9, "start_t_s": 1e9,
+                           "end_t_s": 1e9 + 0.9, "end_reason": "gas gone"})
         status = sub.wait_for(lambda m: m[0] == "site/status")
         assert _json(status[0])["state"] == "online"
-        ends = sub.wait_for(lambda m: m[0] == "site/event" and _json(m)["kind"] == "end")
-        kinds = [_json(m)["kind"] for m in sub.messages if m[0] == "site/event"]
-        assert kinds == ["start", "end"] and _json(ends[0])["id"] == 1
+        ends = sub.wait_for(lambda m: m[0] == "site/event" and _json(m)["type"] == "end")
+        kinds = [_json(m)["type"] for m in sub.messages if m[0] == "site/event"]
+        assert kinds == ["new", "end"] and _json(ends[0])["id"] == 1
+        assert _json(ends[0])["duration_s"] == pytest.approx(0.9)
         sub.wait_for(lambda m: m[0] == "site/summary" and _json(m)["speed_m_s"] == 1.2)
         assert sink.stats().connected and sink.stats().dropped == 0
     finally:
@@ -85,7 +91,7 @@ def test_broker_down_never_blocks_and_messages_resume(tmp_path: Path) -> None:
     try:
         t0 = time.monotonic()
         for k in range(200):  # the broker is down: every call returns at once
-            sink.event("update", {"id": 1, "k": k})
+            sink.event("start", {"id": 100 + k})
         assert time.monotonic() - t0 < 1.0
         s = sink.stats()
         assert not s.connected and s.queued == 50 and s.dropped == 150
@@ -97,13 +103,13 @@ def test_broker_down_never_blocks_and_messages_resume(tmp_path: Path) -> None:
         # Broker killed mid-run, back after 3 s: the outage is counted, messages resume.
         broker.stop()
         time.sleep(3.0)
-        sink.event("update", {"id": 3})  # queued during the outage
+        sink.event("start", {"id": 3})  # queued during the outage
         assert sink.stats().disconnects == 1 and not sink.stats().connected
         published = sink.stats().published
         broker.start()
         sub.close()
         sub = Subscriber(port, "out/#")
-        sink.event("update", {"id": 4})
+        sink.event("start", {"id": 4})
         sub.wait_for(lambda m: _json(m).get("id") == 4, timeout=40)
         s = sink.stats()
         # id 3 went out before id 4 (the queue is FIFO), whoever was subscribed then.

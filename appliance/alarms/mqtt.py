@@ -5,7 +5,10 @@ Topics under ``<prefix>``:
 - ``<prefix>/status``: retained, QoS 1. ``{"state": "online", "health": {...}}`` while the
   appliance runs; the broker publishes the last will ``{"state": "offline"}`` when the
   connection dies without a goodbye (power loss, crash), so a dashboard sees a dead box;
-- ``<prefix>/event``: QoS 1, one message per start, update and end of a leak event;
+- ``<prefix>/event``: QoS 1, ``{"type": "new" | "update" | "end", "id": ...}`` per leak event:
+  ``new`` when it opens, ``update`` only when its state, source or rate class changed (at
+  most once per ``update_s``), ``end`` with the final figures
+  (:mod:`appliance.alarms.throttle`; payloads in docs/operator-page.md);
 - ``<prefix>/summary``: QoS 0, the latest per-frame summary, at most once a second.
 
 The daemon must never wait for a broker. Every public method only appends to a bounded
@@ -27,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from appliance.alarms.sink import AlarmSink, SinkStats
+from appliance.alarms.throttle import EventThrottle
 
 log = logging.getLogger("ogiflow.alarms")
 
@@ -57,6 +61,8 @@ class MqttConfig:
         Events and status messages kept while the broker is unreachable.
     summary_interval_s : float
         Least time between two summaries.
+    update_s : float
+        Least time between two messages of one leak event (frame time), s.
     """
 
     host: str = "127.0.0.1"
@@ -72,6 +78,7 @@ class MqttConfig:
     password_file: Path | None = None
     queue_size: int = 1000
     summary_interval_s: float = 1.0
+    update_s: float = 1.0
 
 
 def _payload(obj: dict[str, Any]) -> bytes:
@@ -99,6 +106,7 @@ class MqttSink(AlarmSink):
         self._down_since: float | None = time.monotonic()
         self._last_summary = 0.0
         self._status: bytes | None = None
+        self.throttle = EventThrottle(cfg.update_s)
         c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=cfg.client_id,
                         protocol=mqtt.MQTTv311)
         c.will_set(self.topic("status"), _payload({"state": "offline",
@@ -155,7 +163,9 @@ class MqttSink(AlarmSink):
         self._enqueue(self.topic("status"), payload, 1, True)
 
     def event(self, kind: str, event: dict[str, Any]) -> None:
-        self._enqueue(self.topic("event"), _payload({"kind": kind, **event}), 1, False)
+        msg = self.throttle.offer(kind, event)
+        if msg is not None:
+            self._enqueue(self.topic("event"), _payload(msg), 1, False)
 
     def summary(self, summary: dict[str, Any]) -> None:
         now = time.monotonic()

@@ -177,8 +177,24 @@ class RecordingConfig:
 
 
 @dataclass(frozen=True)
+class PageConfig:
+    """The operator's web page (appliance.page): status, picture, /status.json, /metrics."""
+
+    enabled: bool = _opt("serve the operator's page, /status.json and /metrics", True)
+    bind: str = _opt("address the page's HTTP server binds to", "127.0.0.1", nonempty=True)
+    port: int = _opt("HTTP port of the page (0: any free port, announced at start)", 8080,
+                     min=0, max=65535)
+    max_image_hz: float = _opt(
+        "pictures encoded for the page at most this often (a browser without GPU shows "
+        "5 JPEGs a second easily)", 5.0, gt=0.0, max=30.0)
+    jpeg_quality: int = _opt("JPEG quality of the page's pictures", 75, min=1, max=100)
+    max_clients: int = _opt("browsers (event streams) served at once; more get 503", 64,
+                            min=1, max=10_000)
+
+
+@dataclass(frozen=True)
 class LiveConfig:
-    """Rerun live view."""
+    """Rerun live view, and the operator's page (``page``)."""
 
     mode: Literal["serve", "connect", "save", "off"] = _opt(
         "serve: web viewer on this box; connect: stream to a viewer at url; "
@@ -203,6 +219,8 @@ class LiveConfig:
         "serve mode: MB of recent live data the viewer server keeps for browsers that "
         "connect later (0 = none); bounds its memory (about 1.6x this + 60 MB)", 64,
         min=0, max=100_000)
+    page: PageConfig = _opt("the operator's web page (independent of Rerun and of mode)",
+                            factory=PageConfig)
 
 
 @dataclass(frozen=True)
@@ -327,6 +345,10 @@ class MqttAlarmConfig:
     queue_size: int = _opt("events and status kept while the broker is unreachable", 1000,
                            min=1, max=1_000_000)
     summary_interval_s: float = _opt("least time between two summaries, s", 1.0, min=0.0)
+    update_s: float = _opt(
+        "least time between two messages of one leak event on <prefix>/event: an update "
+        "goes out when its state, source or rate class changed, at most this often, s",
+        1.0, min=0.0, max=3600.0)
 
 
 @dataclass(frozen=True)

@@ -213,6 +213,8 @@ def _cross_checks(cfg: Config, errors: list[str]) -> None:
     live = cfg.live
     if live.mode == "serve":
         _check_serve(live, errors)
+    if live.page.enabled:
+        _check_page(live, errors)
     if live.mode == "connect" and not live.url.startswith(("rerun+http://", "rerun+https://",
                                                            "rerun://")):
         errors.append(f"live.url: must be a Rerun gRPC URL such as "
@@ -249,6 +251,22 @@ def _check_serve(live: Any, errors: list[str]) -> None:
             if getattr(live, key) < 1024:
                 errors.append(f"live.{key}: ports below 1024 need root, got "
                               f"{getattr(live, key)}")
+
+
+def _check_page(live: Any, errors: list[str]) -> None:
+    page = live.page
+    if page.bind != "localhost":
+        try:
+            ipaddress.ip_address(page.bind)
+        except ValueError:
+            errors.append(f"live.page.bind: must be an IP address of this machine (127.0.0.1, "
+                          f"0.0.0.0, ...), got {page.bind!r}")
+    if 0 < page.port < 1024 and os.geteuid() != 0:
+        errors.append(f"live.page.port: ports below 1024 need root, got {page.port}")
+    if live.mode == "serve" and page.port in (live.grpc_port, live.web_port) and (
+            page.bind == live.bind):
+        errors.append(f"live.page.port: {page.port} is also the Rerun viewer's port; "
+                      f"choose another")
 
 
 def _check_calibration(cfg: Config, errors: list[str]) -> None:

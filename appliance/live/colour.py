@@ -9,7 +9,15 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["disparity_bgr", "encode_jpeg", "flow_bgr", "ir_u8", "to_u8"]
+__all__ = ["ARROW_PX_PER_M_S", "GAS_COLOR", "disparity_bgr", "encode_jpeg", "flow_bgr",
+           "ir_u8", "operator_arrows", "operator_bgr", "to_u8"]
+
+#: Colour of the gas (overlay, arrows, series), RGB.
+GAS_COLOR = (230, 120, 20)
+#: Operator's picture: px of arrow per m/s of in-plane gas velocity.
+ARROW_PX_PER_M_S = 12.0
+#: Opacity of the gas overlay on the operator's picture.
+GAS_OPACITY = 0.45
 
 
 def to_u8(img: np.ndarray) -> np.ndarray:
@@ -87,3 +95,59 @@ def encode_jpeg(img: np.ndarray, quality: int) -> bytes:
     if not ok:
         raise ValueError(f"JPEG encoding failed for an image of shape {img.shape}")
     return buf.tobytes()
+
+
+def operator_arrows(pixels: np.ndarray | None, velocity3d: np.ndarray | None,
+                    max_arrows: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """The in-plane gas velocity arrows of the operator's picture.
+
+    Parameters
+    ----------
+    pixels
+        (N, 2) image positions (x, y) of the virtual gas surface points, px.
+    velocity3d
+        (N, 3) their 3D velocity, m/s (left camera frame, X right, Y down).
+    max_arrows
+        At most this many, evenly subsampled: a readable picture has fewer, longer arrows.
+
+    Returns
+    -------
+    (origins (M, 2) px, vectors (M, 2) px) as float32, or None without points.
+    """
+    if pixels is None or velocity3d is None or not len(pixels):
+        return None
+    pix = np.asarray(pixels, np.float32).reshape(-1, 2)
+    vel = np.asarray(velocity3d, np.float32).reshape(-1, 3)
+    ok = np.isfinite(vel).all(1) & np.isfinite(pix).all(1)
+    pix, vel = pix[ok], vel[ok]
+    if len(pix) > max_arrows:
+        keep = np.linspace(0, len(pix) - 1, max_arrows).astype(int)
+        pix, vel = pix[keep], vel[keep]
+    return pix, vel[:, :2] * ARROW_PX_PER_M_S
+
+
+def operator_bgr(raw: np.ndarray, gas_mask: np.ndarray | None = None,
+                 arrows: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The operator's picture as one image: raw IR (:func:`ir_u8`), the gas region in
+    :data:`GAS_COLOR` at :data:`GAS_OPACITY` and the in-plane velocity arrows
+    (:func:`operator_arrows`), what the Rerun operator tab layers as separate entities.
+
+    Returns
+    -------
+    (H, W, 3) uint8 BGR.
+    """
+    grey = ir_u8(raw)
+    bgr = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+    colour = np.array(GAS_COLOR[::-1], np.float32)
+    if gas_mask is not None:
+        m = np.asarray(gas_mask, bool)
+        if m.shape != grey.shape:
+            raise ValueError(f"gas mask of shape {m.shape} for a picture of {grey.shape}")
+        bgr[m] = ((1.0 - GAS_OPACITY) * bgr[m] + GAS_OPACITY * colour).astype(np.uint8)
+    if arrows is not None:
+        c = tuple(int(v) for v in colour)
+        for (x, y), (u, v) in zip(*arrows, strict=True):
+            cv2.arrowedLine(bgr, (round(float(x)), round(float(y))),
+                            (round(float(x + u)), round(float(y + v))), c, 1,
+                            cv2.LINE_AA, tipLength=0.3)
+    return bgr

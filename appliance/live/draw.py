@@ -12,19 +12,27 @@ from collections.abc import Callable
 import numpy as np
 
 from appliance.live import MAX_ARROWS
-from appliance.live.colour import disparity_bgr, encode_jpeg, flow_bgr, ir_u8, to_u8
+from appliance.live.colour import (
+    GAS_COLOR,
+    GAS_OPACITY,
+    disparity_bgr,
+    encode_jpeg,
+    flow_bgr,
+    ir_u8,
+    operator_arrows,
+    to_u8,
+)
 from appliance.live.items import LiveFrame, LiveScalars
 from appliance.live.status import OperatorStatus, events_markdown, status_markdown
 
 #: ``log(entity_path, archetype, static=False)``.
 Log = Callable[..., None]
 
-GAS_COLOR = (230, 120, 20)
 WIND_COLOR = (30, 110, 230)
+#: Arrows on the operator's picture (a readable picture: fewer, longer arrows).
+OPERATOR_ARROWS = MAX_ARROWS // 4
 #: Arrows show the displacement over this many seconds (velocity in m/s times this).
 ARROW_SCALE_S = 0.2
-#: Operator view: px of arrow per m/s of in-plane gas velocity.
-ARROW_PX_PER_M_S = 12.0
 
 
 def log_styles(log: Log) -> None:
@@ -107,17 +115,11 @@ def log_operator(log: Log, f: LiveFrame, jpeg_quality: int) -> None:
     log_image(log, "operator/ir", ir_u8(f.raw_left), jpeg_quality)
     if f.gas_mask is not None:
         log("operator/ir/gas", rr.SegmentationImage(np.asarray(f.gas_mask, np.uint8),
-                                                    opacity=0.45))
-    if f.pixels is not None and f.velocity3d is not None and len(f.pixels):
-        pix = np.asarray(f.pixels, np.float32).reshape(-1, 2)
-        vel = np.asarray(f.velocity3d, np.float32).reshape(-1, 3)
-        ok = np.isfinite(vel).all(1)
-        pix, vel = pix[ok], vel[ok]
-        if len(pix) > MAX_ARROWS // 4:  # a readable picture: fewer, longer arrows
-            keep = np.linspace(0, len(pix) - 1, MAX_ARROWS // 4).astype(int)
-            pix, vel = pix[keep], vel[keep]
-        log("operator/ir/velocity", rr.Arrows2D(
-            origins=pix, vectors=vel[:, :2] * ARROW_PX_PER_M_S, colors=[GAS_COLOR]))
+                                                    opacity=GAS_OPACITY))
+    arrows = operator_arrows(f.pixels, f.velocity3d, OPERATOR_ARROWS)
+    if arrows is not None:
+        log("operator/ir/velocity", rr.Arrows2D(origins=arrows[0], vectors=arrows[1],
+                                                colors=[GAS_COLOR]))
 
 
 def log_status(log: Log, s: OperatorStatus) -> None:

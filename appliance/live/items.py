@@ -49,6 +49,9 @@ class LiveFrame:
         (N, 2) image positions (x, y) of ``points3d`` in the left image, px.
     raw_left
         (H, W) raw left frame (counts), the operator's IR picture.
+    raw_capture_ns
+        Capture time of ``raw_left``, UNIX ns (the triple's first frame; ``t_capture_ns`` is
+        its middle one): what the operator's page counts the picture's age from.
     """
 
     frame: int
@@ -68,6 +71,7 @@ class LiveFrame:
     truth_angles_deg: tuple[float, float, float] | None = None
     pixels: np.ndarray | None = None
     raw_left: np.ndarray | None = None
+    raw_capture_ns: int | None = None
 
     @property
     def has_pictures(self) -> bool:

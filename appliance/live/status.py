@@ -43,6 +43,10 @@ class OperatorStatus:
         Capture time of the newest processed frame, UNIX ns: shown to the tenth of a second
         so that an operator sees how fresh the picture is (and the browser test measures the
         display latency from it).
+    health_snapshot : dict or None
+        The newest health snapshot whole (``HealthSnapshot.to_dict()``): every field the
+        health monitor reports (streams, counters, gauges, stalled, and whatever it adds
+        later) reaches the page and ``/status.json`` without a change here.
     """
 
     t_capture_ns: int
@@ -55,6 +59,46 @@ class OperatorStatus:
     health: list[str] = field(default_factory=list)
     events: list[Mapping[str, Any]] = field(default_factory=list)
     newest_result_ns: int | None = None
+    health_snapshot: Mapping[str, Any] | None = None
+
+    @property
+    def leak_state(self) -> str:
+        """``"LEAK"`` while an event is open (the state MQTT publishes), else ``"NO LEAK"``."""
+        return "NO LEAK" if self.leak is None else "LEAK"
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON of ``/status.json`` and of the page's ``status`` messages (the payload is
+        documented in docs/operator-page.md)."""
+        now_s = self.t_capture_ns / 1e9
+        leak = None if self.leak is None else dict(self.leak)
+        wind = self.wind_m_s
+        ok_wind = wind is not None and all(math.isfinite(v) for v in wind)
+        return {
+            "t_wall_ns": self.t_capture_ns,
+            "leak": {
+                "state": self.leak_state,
+                "event": leak,
+                "since_t_s": None if leak is None else leak.get("start_t_s"),
+                "for_s": None if leak is None else max(
+                    0.0, now_s - float(leak.get("start_t_s", now_s))),
+                "words": (f"LEAK for {duration_words(now_s - float(leak['start_t_s']))}"
+                          if leak is not None and leak.get("start_t_s") is not None
+                          else self.leak_state),
+            },
+            "rate": {
+                "kg_h": self.rate_kg_h, "uncertainty_kg_h": self.rate_uncertainty_kg_h,
+                "flags": list(self.rate_flags), "true_kg_h": self.true_rate_kg_h,
+            },
+            "wind": {
+                "vector_m_s": list(wind) if ok_wind else None,
+                "speed_m_s": math.sqrt(sum(v * v for v in wind)) if ok_wind else None,
+                "words": wind_words(wind),
+            },
+            "health": {"words": list(self.health), "snapshot": (
+                None if self.health_snapshot is None else dict(self.health_snapshot))},
+            "events": [dict(e) for e in self.events],
+            "newest_result_ns": self.newest_result_ns,
+        }
 
 
 def duration_words(seconds: float) -> str:

@@ -10,11 +10,12 @@ from processing.emission import RateEstimate
 
 
 def announce_start(app: Any) -> None:
-    """Where the live view and the recording are, and how to stop."""
+    """Where the operator's page, the live view and the recording are, and how to stop."""
     where = app.live_url or "off"
+    page = app.page_server.url if app.page_server is not None else "off"
     rec = str(app.cfg.recording.dir) if app.cfg.recording.enabled else "off"
-    sys.stderr.write(f"ogiflow: running. live view: {where}  recording: {rec}  "
-                     f"(Ctrl-C or SIGTERM stops)\n")
+    sys.stderr.write(f"ogiflow: running. operator page: {page}  live view: {where}  "
+                     f"recording: {rec}  (Ctrl-C or SIGTERM stops)\n")
 
 
 def announce_end(app: Any) -> None:

@@ -7,19 +7,21 @@ Data flow (docs/design.md)::
     anemometer reader --WindSample--> wind history --+--> ring buffer --> worker processes
                                                      \\<------ results thread <-----------/
                                                       --> live view thread (drops when full)
+                                                      --> operator page (own thread, drops)
 
 Acquisition and recording never wait: camera threads hand frames to the pairing thread
 through a bounded queue and to the recorder's own queue (both drop and count when full,
 which they never are in normal operation); the pairing thread writes pairs into the
 shared-memory ring, which overwrites the oldest slot instead of waiting; workers take the
 newest consecutive windows and count what they skipped; the live view has its own small
-queue that drops when full.
+queue that drops when full; so has the operator's page, and each of its browsers.
 
 Where each box lives: camera and pairing threads and the raw wind recording in
 ``runtime.acquisition``; the worker pool (ring, worker processes, results thread) in
 ``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; result
 publishing in ``runtime.publishing``; recorder in ``recording.recorder``; live view in
-``live.view``; health in ``runtime.health``; the simulated site in ``runtime.simsite``.
+``live.view``; the operator's page in ``page``; health in ``runtime.health``; the simulated
+site in ``runtime.simsite``.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
+from appliance.live.fanout import views_of
 from appliance.memory import PeriodicTrim
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
@@ -86,6 +89,9 @@ class Appliance:
         #: (W, H) of the images (the ring's slots, the zones).
         self.image_size: tuple[int, int] = (0, 0)
         self.live_url: str | None = None
+        #: The operator's page (``live.page``): its hub and HTTP server.
+        self.page_hub: Any = None
+        self.page_server: Any = None
         #: Faults that end the run with exit code 1 (a thread died, files not finalised).
         self.failures: list[str] = []
         self._keep_up = KeepUpCheck()
@@ -162,8 +168,27 @@ class Appliance:
         Each ``_start_*`` step registers its own teardown on one ExitStack, so whatever
         fails, everything started so far is released in reverse order: acquisition first
         (nothing new enters), then health, processing, live view, and the recorder last
-        (it drains everything queued before it closes).
+        (it drains everything queued before it closes). The operator's page starts before
+        everything (a busy port is a configuration error, exit 2, before any device opens)
+        and stops after the final summary.
+
+        Raises
+        ------
+        ConfigError
+            ``live.page.port`` cannot be bound.
         """
+        self._start_page()
+        try:
+            self._run()
+            if self.announce:
+                announce_end(self)
+        finally:
+            self._stop_page()
+        for text in self.failures:
+            log.error("run failed: %s", text)
+        return EXIT_FAILURE if self.failures else EXIT_OK
+
+    def _run(self) -> None:
         self._prepare()
         with contextlib.ExitStack() as stack:
             stack.callback(self._restore_signals)
@@ -171,10 +196,11 @@ class Appliance:
                 stack.callback(self.site.close)  # a background scene render
             self._start_recording(stack)
             self._start_live(stack)
-            self.monitor = self._make_monitor(stack)
+            views = views_of(self.live, self.page_hub)  # Rerun view and operator's page
+            self.monitor = self._make_monitor(stack, views)
             stack.callback(self.monitor.close)
             self.publisher = ResultPublisher(
-                self.recorder, self.live, self.wall_ns, self.cfg.recording.fields_every,
+                self.recorder, views, self.wall_ns, self.cfg.recording.fields_every,
                 wind_at=self.history.at,
                 truth_for=self._truth_for if self.site.truth is not None else None,
                 monitor=self.monitor, rate_window_s=self.cfg.events.rate_window_s,
@@ -188,11 +214,6 @@ class Appliance:
             if self.announce:
                 announce_start(self)
             self._wait()
-        if self.announce:
-            announce_end(self)
-        for text in self.failures:
-            log.error("run failed: %s", text)
-        return EXIT_FAILURE if self.failures else EXIT_OK
 
     def warm_up(self) -> str:
         """What a first start would otherwise do while acquiring, then stop: render the
@@ -304,26 +325,54 @@ class Appliance:
     def _note_peak_rss(self) -> None:
         self.peak_rss_mb = [peak_rss_mb(None), *self.pool.worker_peak_rss_mb()]
 
-    def _make_monitor(self, stack: contextlib.ExitStack) -> Any:
+    def _start_page(self) -> None:
+        """The operator's page: its hub (encoder thread) and HTTP server (``live.page``)."""
+        page = self.cfg.live.page
+        if not page.enabled:
+            return
+        from appliance.page.hub import PageHub
+        from appliance.page.server import PageServer
+        from appliance.runtime.metrics import metrics_text
+
+        self.page_hub = PageHub(page.max_image_hz, page.jpeg_quality,
+                                clock=lambda: self.wall_ns(time.monotonic_ns())).start()
+        try:
+            self.page_server = PageServer(page, self.page_hub,
+                                          metrics=lambda: metrics_text(self)).start()
+        except BaseException:
+            self.page_hub.close()
+            raise
+
+    def _stop_page(self) -> None:
+        if self.page_server is not None:
+            self.page_server.close()
+        if self.page_hub is not None:
+            self.page_hub.close()
+
+    def _make_monitor(self, stack: contextlib.ExitStack, views: Any) -> Any:
         from appliance.runtime.acquisition import nominal_frame_rate_hz
         from appliance.runtime.monitor import monitor_from_config
 
         assert self.site is not None
-        return monitor_from_config(self.cfg, self.image_size, stack, live=self.live,
+        return monitor_from_config(self.cfg, self.image_size, stack, live=views,
                                    on_event=self._on_event,
                                    true_rate_g_s=self.site.shown_true_rate_g_s(),
                                    nominal_fps=nominal_frame_rate_hz(self.cfg))
 
-    def _on_event(self, kind: str, event: dict[str, Any]) -> None:
-        """A leak event changed: record it, and keep its raw frames as a clip."""
+    def _on_event(self, kind: str, event: dict[str, Any]) -> dict[str, Any] | None:
+        """A leak event changed: record it, and keep its raw frames as a clip (whose folder
+        is returned for the event's messages and the operator's list)."""
         self.publisher.record_event(kind, event)
         if self.clips is None:
-            return
+            return None
         if kind == "start":
-            self.clips.event_started(int(event["id"]), float(event["start_t_s"]), event)
-        elif kind == "end":
+            folder = self.clips.event_started(int(event["id"]), float(event["start_t_s"]),
+                                              event)
+            return {"clip": str(folder)}
+        if kind == "end":
             self.clips.event_ended(int(event["id"]), float(event["end_t_s"] or
                                                            event["start_t_s"]), event)
+        return None
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
         from appliance.runtime.health import (

@@ -81,7 +81,7 @@ class KeepUpCheck:
 class StageTimes:
     """Median wall time of each chain stage over the last ``keep`` results, ms.
 
-    Fed with each result's ``timings_ms`` (:attr:`processing.chain.SceneFlowResult.
+    Fed with each result's ``timings_ms`` (:attr:`processing.chain.driver.SceneFlowResult.
     timings_ms`: one entry per stage and ``total``, measured in the worker).
     """
 
@@ -120,11 +120,20 @@ def peak_rss_mb(pid: int | None) -> float | None:
     Read from /proc, not getrusage: a spawned child inherits its parent's ru_maxrss across
     fork and exec, which would report the daemon's peak for every worker.
     """
+    return _proc_status_mb(pid, "VmHWM:")
+
+
+def rss_mb(pid: int | None) -> float | None:
+    """Resident memory now (VmRSS) of a process in MB (None: this one); None if unknown."""
+    return _proc_status_mb(pid, "VmRSS:")
+
+
+def _proc_status_mb(pid: int | None, key: str) -> float | None:
     try:
         text = Path(f"/proc/{pid or 'self'}/status").read_text()
     except OSError:
         return None
     for line in text.splitlines():
-        if line.startswith("VmHWM:"):
+        if line.startswith(key):
             return int(line.split()[1]) / 1024  # kB
     return None

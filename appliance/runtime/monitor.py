@@ -28,6 +28,9 @@ from processing.emission.rate import FrameRate, RateEstimate
 
 log = logging.getLogger("ogiflow.monitor")
 
+#: Events in the operator's list (the newest; the open one first).
+EVENTS_SHOWN = 10
+
 
 class LeakMonitor:
     """Feeds every result into the event logic and the rate window; reports changes.
@@ -39,11 +42,13 @@ class LeakMonitor:
     image_size : (int, int)
         (W, H) of the left image (for the zones).
     on_event : callable
-        ``(kind, event_dict)`` for every start/update/end (recorder, alarm sinks).
+        ``(kind, event_dict)`` for every start/update/end (recorder, clips); it may return a
+        mapping of more fields for the event (its clip folder), which the alarm sinks and
+        the status's event list then carry.
     alarm_sinks : sequence
         :class:`appliance.alarms.sink.AlarmSink` objects (status and summaries too).
-    live : LiveView or None
-        Receives :class:`OperatorStatus` items.
+    live : LiveView, ViewFanout or None
+        Receives :class:`OperatorStatus` items (the Rerun view and the operator's page).
     true_rate_g_s : float or None
         Simulated runs: the simulator's release rate, shown beside the measurement.
     nominal_fps : float
@@ -68,6 +73,9 @@ class LeakMonitor:
         self.rate: RateEstimate | None = None
         self.wind: tuple[float, float, float] | None = None
         self._health: list[str] = []
+        self._health_snapshot: dict[str, Any] | None = None
+        #: Extra fields of recent events from ``on_event`` (clip folders), by event id.
+        self._extra: dict[int, dict[str, Any]] = {}
         self._t_wall_ns = 0
         self._frame = 0
         self._lock = threading.Lock()
@@ -114,6 +122,7 @@ class LeakMonitor:
         words = camera_words(snapshot) + health_words(snapshot, self.nominal_fps)
         with self._lock:
             self._health = words
+            self._health_snapshot = snapshot.to_dict()
         for sink in self.sinks:
             sink.status({"health": words, "t_wall_ns": int(snapshot.t_wall_ns),
                          "leak": self.detector.current is not None,
@@ -132,12 +141,25 @@ class LeakMonitor:
     # ------------------------------------------------------------------ outputs
 
     def _report(self, kind: str, event: LeakEvent, t_wall_ns: int) -> None:
-        d = {"t_wall_ns": t_wall_ns, **event.to_dict()}
+        with self._lock:
+            r = self.rate
+        d = {"t_wall_ns": t_wall_ns, **event.to_dict(), **self._extra.get(event.id, {})}
         if kind != "update":
             log.warning("leak event %d %s: %s", event.id, kind,
                         {k: v for k, v in d.items() if v is not None})
         if self.on_event is not None:
-            self.on_event(kind, d)
+            extra = self.on_event(kind, d)
+            if extra:
+                with self._lock:
+                    self._extra.setdefault(event.id, {}).update(extra)
+                    for old in sorted(self._extra)[:-EVENTS_SHOWN]:
+                        del self._extra[old]
+                d.update(extra)
+        # The rate the operator reads now (the window), beside the event's own statistics.
+        d.update({"rate_kg_h": None if r is None else r.rate_kg_h,
+                  "rate_uncertainty_kg_h": None if r is None or r.uncertainty_g_s is None
+                  else r.uncertainty_g_s * 3.6,
+                  "rate_flags": [] if r is None else list(r.flags)})
         for sink in self.sinks:
             sink.event(kind, d)
 
@@ -145,13 +167,14 @@ class LeakMonitor:
         """The operator's status now."""
         with self._lock:
             cur = self.detector.current
-            events = [e.to_dict() for e in reversed(self.detector.finished[-9:])]
+            shown = list(self.detector.finished[-(EVENTS_SHOWN - 1):])
             if cur is not None:
-                events.insert(0, cur.to_dict())
+                shown.append(cur)
+            events = [{**e.to_dict(), **self._extra.get(e.id, {})} for e in reversed(shown)]
             r = self.rate
             return OperatorStatus(
                 t_capture_ns=t_wall_ns or self._t_wall_ns,
-                leak=None if cur is None else cur.to_dict(),
+                leak=None if cur is None else {**cur.to_dict(), **self._extra.get(cur.id, {})},
                 rate_kg_h=None if r is None or r.rate_kg_h is None else r.rate_kg_h,
                 rate_uncertainty_kg_h=(None if r is None or r.uncertainty_g_s is None
                                        else r.uncertainty_g_s * 3.6),
@@ -159,7 +182,8 @@ class LeakMonitor:
                 true_rate_kg_h=(None if self.true_rate_g_s is None
                                 else self.true_rate_g_s * 3.6),
                 wind_m_s=self.wind, health=list(self._health), events=events,
-                newest_result_ns=self._t_wall_ns or None)
+                newest_result_ns=self._t_wall_ns or None,
+                health_snapshot=self._health_snapshot)
 
     def push_status(self, t_wall_ns: int | None = None) -> None:
         if self.live is not None:

@@ -324,7 +324,10 @@ class PairRing:
     # ------------------------------------------------------------------ state
 
     def stats(self) -> RingStats:
-        """Counters: pairs written, backlog, overwrites of pairs no window ended on."""
+        """Counters: pairs written, backlog, overwrites of pairs no window ended on (after
+        :meth:`close`, those it had then: the final report reads them)."""
+        if self._header is None:
+            return self._final
         written = int(self._header[_HEAD])
         claimed = int(self._header[_CLAIMED])
         backlog = max(0, min(self.capacity, written - 1 - claimed))
@@ -338,6 +341,7 @@ class PairRing:
 
     def close(self) -> None:
         """Detach from the shared memory (views become invalid)."""
+        self._final = self.stats()
         self._header = self._meta = self._left = self._right = None  # type: ignore[assignment]
         self._shm.close()
 
