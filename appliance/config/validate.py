@@ -240,12 +240,7 @@ def _check_serve(live: Any, errors: list[str]) -> None:
     if live.grpc_port == live.web_port:
         errors.append(f"live.web_port: must differ from live.grpc_port, both are "
                       f"{live.grpc_port}")
-    if live.bind != "localhost":
-        try:
-            ipaddress.ip_address(live.bind)
-        except ValueError:
-            errors.append(f"live.bind: must be an IP address of this machine (127.0.0.1, "
-                          f"0.0.0.0, ...), got {live.bind!r}")
+    _check_bind("live.bind", live.bind, errors)
     if os.geteuid() != 0:
         for key in ("grpc_port", "web_port"):
             if getattr(live, key) < 1024:
@@ -253,14 +248,20 @@ def _check_serve(live: Any, errors: list[str]) -> None:
                               f"{getattr(live, key)}")
 
 
+def _check_bind(key: str, bind: str, errors: list[str]) -> None:
+    """A bind address: ``localhost`` or an IP address of this machine."""
+    if bind == "localhost":
+        return
+    try:
+        ipaddress.ip_address(bind)
+    except ValueError:
+        errors.append(f"{key}: must be an IP address of this machine (127.0.0.1, "
+                      f"0.0.0.0, ...), got {bind!r}")
+
+
 def _check_page(live: Any, errors: list[str]) -> None:
     page = live.page
-    if page.bind != "localhost":
-        try:
-            ipaddress.ip_address(page.bind)
-        except ValueError:
-            errors.append(f"live.page.bind: must be an IP address of this machine (127.0.0.1, "
-                          f"0.0.0.0, ...), got {page.bind!r}")
+    _check_bind("live.page.bind", page.bind, errors)
     if 0 < page.port < 1024 and os.geteuid() != 0:
         errors.append(f"live.page.port: ports below 1024 need root, got {page.port}")
     if live.mode == "serve" and page.port in (live.grpc_port, live.web_port) and (
