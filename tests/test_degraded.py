@@ -188,7 +188,7 @@ def test_single_camera_site_on_real_footage(tmp_path: Path) -> None:
         offline = detect_folder("clip", frames, DetectionSettings(
             fps=1.0, footage=FootageSettings()))
         assert offline["events"], "eval detection finds no event on the class-3 clip"
-        sub.wait_for(lambda m: m[0] == "site/event" and json.loads(m[1])["kind"] == "end",
+        sub.wait_for(lambda m: m[0] == "site/event" and json.loads(m[1])["type"] == "end",
                      timeout=60)
         messages = [(t, json.loads(p)) for t, p, _ in sub.messages]
     finally:
@@ -209,9 +209,9 @@ def test_single_camera_site_on_real_footage(tmp_path: Path) -> None:
     assert [(e.start_frame, e.end_frame) for e in live] == [
         (e["start_frame"] - first + 1, e["end_frame"] - first + 1) for e in offline["events"]]
     assert [e.source_xy for e in live] == [tuple(e["source_xy"]) for e in offline["events"]]
-    kinds = [(m["kind"], m["id"]) for t, m in messages if t == "site/event"]
+    kinds = [(m["type"], m["id"]) for t, m in messages if t == "site/event"]
     for e in live:
-        assert ("start", e.id) in kinds and ("end", e.id) in kinds
+        assert ("new", e.id) in kinds and ("end", e.id) in kinds
     status = [m for t, m in messages if t == "site/status" and "mode" in m]
     assert status and status[-1]["mode"] == "single_camera"
     clips = list((tmp_path / "rec" / "events").rglob("*.mcap"))
