@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from appliance.config import ConfigError, config_from_args
     from appliance.live.view import LiveViewError
     from appliance.runtime.daemon import Appliance
+    from appliance.runtime.warmup import warm_up
     from drivers.anemometer.base import AnemometerConfigError
 
     logging.basicConfig(level=getattr(logging, args.log_level), stream=sys.stderr,
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     appliance = Appliance(cfg, duration_s=args.duration, announce=True)
     try:
         if args.prepare:
-            print(f"ogiflow: ready: {appliance.warm_up()}")
+            print(f"ogiflow: ready: {warm_up(appliance)}")
             return 0
         return appliance.run()
     except (ConfigError, AnemometerConfigError):

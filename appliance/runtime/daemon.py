@@ -43,10 +43,12 @@ from appliance.memory import PeriodicTrim
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
+from appliance.runtime.metrics import metrics_text
+from appliance.runtime.page_service import start_page, stop_page
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, emission_setup
-from processing.chain.driver import ChainParameters, StereoGeometry
+from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -189,7 +191,7 @@ class Appliance:
         return EXIT_FAILURE if self.failures else EXIT_OK
 
     def _run(self) -> None:
-        self._prepare()
+        self.prepare()
         with contextlib.ExitStack() as stack:
             stack.callback(self._restore_signals)
             if self.site is not None:
@@ -215,29 +217,7 @@ class Appliance:
                 announce_start(self)
             self._wait()
 
-    def warm_up(self) -> str:
-        """What a first start would otherwise do while acquiring, then stop: render the
-        simulated scene (the configured one, cached) and run the chain once on its first
-        triple, which compiles numba's kernels into their on-disk cache. Opens no device.
-        Returns what it did, for the user."""
-        from processing.chain.driver import ChainState, compute_scene_flow
-        from processing.synthetic import read_frame, read_sequence_meta
-
-        start = time.monotonic()
-        self._prepare(full_scene=True)
-        done = []
-        if self.site is not None and self.site.folder is not None and self.geometry is not None:
-            done.append(f"simulated scene cached in {self.site.folder}")
-            meta = read_sequence_meta(self.site.folder)
-            f = [read_frame(self.site.folder, i, meta) for i in range(3)]
-            compute_scene_flow([x.left for x in f], [x.right for x in f], [x.t_s for x in f],
-                               self.geometry, self.params, ChainState())
-            done.append("the chain's kernels compiled")
-        else:
-            done.append("no simulated scene to render; the chain compiles on its first triple")
-        return f"{'; '.join(done)} ({time.monotonic() - start:.0f} s)"
-
-    def _prepare(self, *, full_scene: bool = False) -> None:
+    def prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
         from appliance.runtime.acquisition import camera_watch
         from appliance.runtime.health import HealthMonitor
@@ -326,28 +306,13 @@ class Appliance:
         self.peak_rss_mb = [peak_rss_mb(None), *self.pool.worker_peak_rss_mb()]
 
     def _start_page(self) -> None:
-        """The operator's page: its hub (encoder thread) and HTTP server (``live.page``)."""
-        page = self.cfg.live.page
-        if not page.enabled:
-            return
-        from appliance.page.hub import PageHub
-        from appliance.page.server import PageServer
-        from appliance.runtime.metrics import metrics_text
-
-        self.page_hub = PageHub(page.max_image_hz, page.jpeg_quality,
-                                clock=lambda: self.wall_ns(time.monotonic_ns())).start()
-        try:
-            self.page_server = PageServer(page, self.page_hub,
-                                          metrics=lambda: metrics_text(self)).start()
-        except BaseException:
-            self.page_hub.close()
-            raise
+        """The operator's page (``live.page``): its hub and HTTP server."""
+        self.page_hub, self.page_server = start_page(
+            self.cfg.live.page, clock=lambda: self.wall_ns(time.monotonic_ns()),
+            metrics=lambda: metrics_text(self))
 
     def _stop_page(self) -> None:
-        if self.page_server is not None:
-            self.page_server.close()
-        if self.page_hub is not None:
-            self.page_hub.close()
+        stop_page(self.page_hub, self.page_server)
 
     def _make_monitor(self, stack: contextlib.ExitStack, views: Any) -> Any:
         from appliance.runtime.acquisition import nominal_frame_rate_hz
