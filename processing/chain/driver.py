@@ -25,6 +25,7 @@ images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timesta
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ import numpy as np
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
 from processing.chain.parameters import ChainParameters
+from processing.chain.region import Box, choose_region
 from processing.chain.result import SceneFlowResult, frame_interval
 from processing.chain.scale import gas_radiance, initial_scale
 from processing.chain.state import ChainState, Times, WarmStart, solver_options
@@ -111,32 +113,41 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     flags.extend(["scene_change"] if cut else [])
     warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
 
-    flow = _flow(pl, params, warm)
+    box = _region(pl, params, warm, stream)
+    cl, cr, cwarm, cblank, history = _crop(box, pl, pr, warm, blanked,
+                                           stream.change_history(follows))
+    flow = _flow(cl, params, cwarm)
     clock.lap("flow")
-    init = _initial_disparity(pl, pr, params, warm)
+    init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
-    d, dd = _disparity(pl, pr, flow, init, params, warm is not None, flags, blanked,
-                       stream.change_history(follows))
+    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history)
+    flow, d, dd = _paste(box, flow, d, dd, warm)
     clock.lap("disparity")
     seg = segment_gas(pl.diff0, flow, nu=params.nu, **params.segmentation_options)
+    inside = None if box is None else box.mask(d.shape)
+    mask = seg.mask if inside is None else seg.mask & inside
     clock.lap("segmentation")
-    velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, seg.mask,
+    velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, mask,
                                                             geometry, params, dt)
+    if inside is not None:
+        valid &= inside
+        u_sf_valid &= inside
     clock.lap("velocity_quality")
-    summary = summarize_frame(velocity, valid, seg.mask, c_usf(u_sf, seg.mask, valid & u_sf_valid),
+    summary = summarize_frame(velocity, valid, mask, c_usf(u_sf, mask, valid & u_sf_valid),
                               tuple(flags))
     clock.lap("summary")
 
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
-                  scene_change=cut, flow=flow, disparity=d, change=dd)
+                  scene_change=cut, flow=flow, disparity=d, change=dd, mask=mask)
     return SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
-        valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=seg.mask, phi=seg.phi,
+        valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=mask, phi=seg.phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
         warm=warm is not None,
+        region=None if box is None else (box.y0, box.y1, box.x0, box.x1),
     )
 
 
@@ -240,6 +251,58 @@ def _settle_scale(pl: PreprocessedTriple, pr: PreprocessedTriple, stream: ChainS
         pl, pr = rescale_differences(pl, scale / target), rescale_differences(pr, scale / target)
         scale = target
     return (pl, pr), scale, measured, target
+
+
+def _region(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,
+            stream: ChainState) -> Box | None:
+    """The box the solvers work on (:mod:`processing.chain.region`), None for the whole
+    frame: always on a cold start, where nothing says yet where the gas is."""
+    if not params.active_region or warm is None:
+        return None
+    return choose_region((pl.diff0, pl.diff1), warm.flow, warm.disparity, stream.previous_mask,
+                         margin_px=params.region_margin_px,
+                         max_fraction=params.region_max_fraction)
+
+
+def _crop(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
+          warm: WarmStart | None, blanked: tuple[np.ndarray, np.ndarray] | None,
+          history: tuple[np.ndarray | None, int]
+          ) -> tuple[PreprocessedTriple, PreprocessedTriple, WarmStart | None,
+                     tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray | None, int]]:
+    """The solvers' inputs inside ``box``: left images, warm fields and history on the box,
+    the right images ``box.shift`` columns further left, the disparity less that shift."""
+    if box is None:
+        return pl, pr, warm, blanked, history
+
+    def cut(a: np.ndarray, index: tuple[slice, slice]) -> np.ndarray:
+        return np.ascontiguousarray(a[index])
+
+    lft, rgt = box.left, box.right
+    cl = dataclasses.replace(pl, diff0=cut(pl.diff0, lft), diff1=cut(pl.diff1, lft))
+    cr = dataclasses.replace(pr, diff0=cut(pr.diff0, rgt), diff1=cut(pr.diff1, rgt))
+    cwarm = None if warm is None else WarmStart(
+        cut(warm.flow, lft), cut(warm.disparity, lft) - np.float32(box.shift),
+        cut(warm.change, lft))
+    cblank = None if blanked is None else (cut(blanked[0], lft), cut(blanked[1], rgt))
+    previous, steps = history
+    return cl, cr, cwarm, cblank, (None if previous is None else cut(previous, lft), steps)
+
+
+def _paste(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarray,
+           warm: WarmStart | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whole-frame w_L, d_L, d'_L from the box's: outside it no motion, the previous d_L
+    (a start for the next triple, not a measurement: the chain marks it invalid)."""
+    if box is None:
+        return flow, d, dd
+    assert warm is not None
+    shape = warm.disparity.shape
+    full_flow = np.zeros((*shape, 2), np.float32)
+    full_flow[box.left] = flow
+    full_d = np.array(warm.disparity, np.float32, copy=True)
+    full_d[box.left] = d + np.float32(box.shift)
+    full_dd = np.zeros(shape, np.float32)
+    full_dd[box.left] = dd
+    return full_flow, full_d, full_dd
 
 
 def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None

@@ -84,6 +84,14 @@ class ChainParameters:
         cold anyway, so that a wrong state does not live longer than that many triples
         (:func:`processing.chain.state.warm_start`); 0 never does. The default 30 (1 s at
         30 Hz and stride 1) costs about one cold start per second (+3 % of the chain).
+    active_region : bool
+        On a warm start, solve the flow and the disparities only inside the box around
+        the active pixels and the previous gas mask (:mod:`processing.chain.region`);
+        False solves the whole frame every time.
+    region_margin_px : int
+        Margin of that box around the active pixels, px.
+    region_max_fraction : float
+        A box covering more of the frame than this share is solved as the whole frame.
     flow_options, disparity_options, segmentation_options : mapping
         Further keyword arguments of the three solvers (iteration counts, pyramid ...).
     warm_flow_options, warm_disparity_options : mapping
@@ -111,6 +119,9 @@ class ChainParameters:
     scale_forgetting: float = 0.02
     warm_start: bool = True
     cold_every: int = 30
+    active_region: bool = True
+    region_margin_px: int = 24
+    region_max_fraction: float = 0.7
     flow_options: Mapping[str, Any] = field(default_factory=dict)
     disparity_options: Mapping[str, Any] = field(default_factory=dict)
     segmentation_options: Mapping[str, Any] = field(default_factory=dict)
@@ -134,6 +145,13 @@ class ChainParameters:
         if isinstance(self.cold_every, bool) or not isinstance(self.cold_every, int) \
                 or self.cold_every < 0:
             raise ValueError(f"cold_every must be an integer >= 0, got {self.cold_every!r}")
+        if isinstance(self.region_margin_px, bool) or not isinstance(self.region_margin_px, int) \
+                or self.region_margin_px < 0:
+            raise ValueError(f"region_margin_px must be an integer >= 0, "
+                             f"got {self.region_margin_px!r}")
+        if not 0 < self.region_max_fraction <= 1:
+            raise ValueError(f"region_max_fraction must be in (0, 1], "
+                             f"got {self.region_max_fraction!r}")
         if not 0 < self.scale_forgetting <= 1:
             raise ValueError(f"scale_forgetting must be in (0, 1], got {self.scale_forgetting!r}")
 

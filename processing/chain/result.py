@@ -50,6 +50,10 @@ class SceneFlowResult:
         Wall time per stage in ms, and "total".
     warm : bool
         True when the solvers started from the previous triple (:mod:`processing.chain.state`).
+    region : (int, int, int, int) or None
+        Rows y0:y1 and columns x0:x1 (px) the solvers worked on (the active region,
+        :mod:`processing.chain.region`); outside it nothing is measured and ``valid`` is
+        False. None: the whole frame.
     """
 
     times_s: tuple[float, float, float]
@@ -73,6 +77,7 @@ class SceneFlowResult:
     rejected_shifts: int
     timings_ms: dict[str, float]
     warm: bool = False
+    region: tuple[int, int, int, int] | None = None
 
 
 def frame_interval(times_s: Sequence[float]) -> float:

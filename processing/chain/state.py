@@ -80,6 +80,8 @@ class ChainState:
         Tracked normalisation scale of the differential images.
     previous_flow, previous_disparity, previous_change : ndarray or None
         w_L (H, W, 2), d_L and d'_L (H, W) of the previous triple, px.
+    previous_mask : ndarray or None
+        The previous triple's gas mask (H, W), bool (the active region starts from it).
     previous_times : (float, float, float) or None
         Capture times of the previous triple, s.
     shifts : ShiftMemo
@@ -102,6 +104,7 @@ class ChainState:
     previous_flow: np.ndarray | None = None
     previous_disparity: np.ndarray | None = None
     previous_change: np.ndarray | None = None
+    previous_mask: np.ndarray | None = None
     previous_times: Times | None = None
     shifts: ShiftMemo = field(default_factory=LocalShiftMemo)
     shifts_reused: int = 0
@@ -127,6 +130,7 @@ class ChainState:
     def reset(self) -> None:
         """Forget the previous triple (the next call starts cold); keeps the scale."""
         self.previous_flow = self.previous_disparity = self.previous_change = None
+        self.previous_mask = None
         self.previous_times = None
         self.frames.clear()
 
@@ -245,7 +249,7 @@ class ChainState:
     def finish(self, *, times: Times, scale: float, fixed_scale: float | None,
                forgetting: float, measured: Sequence[np.ndarray], target: float | None,
                scene_change: bool, flow: np.ndarray, disparity: np.ndarray,
-               change: np.ndarray) -> None:
+               change: np.ndarray, mask: np.ndarray | None = None) -> None:
         """Leave this triple for the next: the tracked scale moves towards ``target``; the
         fields are kept for a warm start unless the triple was a scene change (then the
         next triple starts cold too: these fields are not gas)."""
@@ -259,6 +263,7 @@ class ChainState:
         self.previous_flow = flow
         self.previous_disparity = disparity
         self.previous_change = change
+        self.previous_mask = mask
         self.previous_times = times
 
 

@@ -1,0 +1,152 @@
+"""The active region: where the gas is, so that the solvers need not iterate elsewhere.
+
+The gas covers a small part of the frame (about a fifth in the field scene), yet the flow
+(Eq. 5) and joint disparity (Eq. 6) solvers cost the same per pixel everywhere. On a warm
+start, the region the solvers see is the bounding box of
+
+- the current triple's active pixels: a left differential image (Eq. 2) or the previous
+  flow well above the frame's robust spread, the same contrast the segmentation
+  (Sec. 4.4) starts from, so that gas entering the frame is seen at once;
+- the previous triple's gas mask;
+
+both dilated by a margin that covers a frame's motion and the smoothness terms' reach.
+Cold starts and scene changes solve the whole frame, and so does a box that would cover
+most of it anyway. Outside the box nothing is solved: the fields there are not measured and
+the chain marks them invalid.
+
+The joint solver samples the right images at x - d. The right crop is therefore taken
+``shift`` columns further left than the left crop, and the solver sees the disparity
+d - shift: Eq. 6 depends on d only through that sample and through grad d, so the shift
+changes nothing but the coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+#: Contrast over the robust spread above which a pixel counts as active (the
+#: segmentation's own initial threshold, :func:`processing.segmentation.segment.initial_phi`).
+ACTIVE_THRESHOLD = 2.0
+
+
+@dataclass(frozen=True)
+class Box:
+    """A rectangle of the frame, rows ``y0:y1``, columns ``x0:x1`` (px, end exclusive), and
+    the column shift of the right crop (px, >= 0)."""
+
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    shift: int = 0
+
+    @property
+    def left(self) -> tuple[slice, slice]:
+        """Index of the box in the left image."""
+        return slice(self.y0, self.y1), slice(self.x0, self.x1)
+
+    @property
+    def right(self) -> tuple[slice, slice]:
+        """Index of the right crop: the same rows, ``shift`` columns to the left."""
+        return slice(self.y0, self.y1), slice(self.x0 - self.shift, self.x1 - self.shift)
+
+    def fraction(self, shape: tuple[int, int]) -> float:
+        """Share of a (H, W) frame the box covers."""
+        return (self.y1 - self.y0) * (self.x1 - self.x0) / float(shape[0] * shape[1])
+
+    def mask(self, shape: tuple[int, int]) -> np.ndarray:
+        """(H, W) bool, True inside the box."""
+        out = np.zeros(shape, bool)
+        out[self.left] = True
+        return out
+
+
+def active_pixels(diffs: tuple[np.ndarray, ...], flow: np.ndarray | None) -> np.ndarray:
+    """Pixels whose contrast stands out of the frame's spread.
+
+    Parameters
+    ----------
+    diffs : tuple of ndarray, shape (H, W), float32
+        Normalised differential images in [0, 1] (0.5 = no change).
+    flow : ndarray, shape (H, W, 2), float32, or None
+        The previous triple's flow in px/frame (moving gas, even where it is faint now).
+
+    Returns
+    -------
+    ndarray, shape (H, W), bool
+    """
+    active = np.zeros(diffs[0].shape, bool)
+    features = [np.abs(d - np.float32(0.5)) for d in diffs]
+    if flow is not None:
+        features.append(np.hypot(flow[..., 0], flow[..., 1]))
+    for f in features:
+        # Spread as in the segmentation: the mean absolute value, x 1.2533 (Gaussian).
+        spread = 1.2533 * float(f.mean()) + 1e-6
+        score = cv2.GaussianBlur(f.astype(np.float32), (0, 0), 2.0)
+        active |= score > ACTIVE_THRESHOLD * spread
+    return active
+
+
+def bounding_box(mask: np.ndarray, margin_px: int, align: int = 8) -> Box | None:
+    """Bounding box of ``mask`` grown by ``margin_px`` on every side, edges on multiples of
+    ``align`` px (fewer distinct level sizes for the solvers' workspaces), clipped to the
+    frame; None for an empty mask."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    if rows.size == 0:
+        return None
+    h, w = mask.shape
+    y0 = max(0, (int(rows[0]) - margin_px) // align * align)
+    x0 = max(0, (int(cols[0]) - margin_px) // align * align)
+    y1 = min(h, -(-(int(rows[-1]) + 1 + margin_px) // align) * align)
+    x1 = min(w, -(-(int(cols[-1]) + 1 + margin_px) // align) * align)
+    return Box(y0, y1, x0, x1)
+
+
+def right_shift(box: Box, disparity: np.ndarray) -> Box:
+    """``box`` with the right crop's column shift: the smallest disparity inside the box
+    (px, rounded down), at most ``x0`` so the crop stays in the frame."""
+    d_min = float(np.min(disparity[box.left]))
+    shift = int(min(max(np.floor(d_min), 0.0), box.x0))
+    return Box(box.y0, box.y1, box.x0, box.x1, shift)
+
+
+def choose_region(diffs: tuple[np.ndarray, ...], previous_flow: np.ndarray,
+                  previous_disparity: np.ndarray, previous_mask: np.ndarray | None, *,
+                  margin_px: int, max_fraction: float, min_size: int = 16) -> Box | None:
+    """The box the solvers see on a warm start, or None for the whole frame.
+
+    Parameters
+    ----------
+    diffs : tuple of ndarray, shape (H, W), float32
+        This triple's left differential images.
+    previous_flow : ndarray, shape (H, W, 2)
+        The previous triple's w_L, px.
+    previous_disparity : ndarray, shape (H, W)
+        The previous triple's d_L, px (the right crop's shift).
+    previous_mask : ndarray, shape (H, W), bool, or None
+        The previous triple's gas mask.
+    margin_px : int
+        Margin around the active pixels, px.
+    max_fraction : float
+        A box covering more of the frame than this is not worth cropping: None.
+    min_size : int
+        Smallest box side, px (the solvers' pyramids need a few levels).
+
+    Returns
+    -------
+    Box or None
+    """
+    active = active_pixels(diffs, previous_flow)
+    if previous_mask is not None:
+        active |= previous_mask
+    box = bounding_box(active, margin_px)
+    shape = diffs[0].shape
+    if box is None or box.fraction(shape) > max_fraction:
+        return None
+    if box.y1 - box.y0 < min_size or box.x1 - box.x0 < min_size:
+        return None
+    return right_shift(box, previous_disparity)
