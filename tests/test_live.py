@@ -318,7 +318,7 @@ def test_display_conversions() -> None:
 
 def test_a_frame_without_pictures_never_replaces_one_with_them(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Workers send the full fields only when asked (``workers.pack_result``): the one
+    """Workers send the full fields only when asked (``worker_result.pack_result``): the one
     frame with pictures must reach the screen even when plot-only frames follow it."""
     view = LiveView(_cfg(mode="save", file=tmp_path / "x.rrd"), max_image_hz=1000.0)
     shown: list[tuple[int, bool]] = []

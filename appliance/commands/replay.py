@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
         load_parameters,
         parse_override,
     )
-    from appliance.runtime.workers import _single_threaded
+    from appliance.runtime.workers import single_threaded
 
     src: Path = args.file
     rec = Recording.open(src)
@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     segments = [cut_segments([], None)[0]]
     if args.segment_s is not None:
         segments = cut_segments([p.time_ns for _i, p in PairStream(rec)], args.segment_s)
-    _single_threaded()  # bit-identical to reprocess, whose tasks run one thread each
+    single_threaded()  # bit-identical to reprocess, whose tasks run one thread each
 
     sink = McapSink(out, rec.output_metadata(params, args.segment_s))
     live = None

@@ -28,15 +28,10 @@ from typing import Any
 import numpy as np
 
 from appliance.reprocess.source import PairStream, Recording, read_wind, wind_history
+from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
 from appliance.runtime.publishing import ResultPublisher
-from appliance.runtime.workers import (
-    NO_RADIOMETRY,
-    EmissionSetup,
-    WorkerResult,
-    compute_scene_flow_on,
-    emission_rate,
-    pack_result,
-)
+from appliance.runtime.worker_result import WorkerResult, pack_result
+from appliance.runtime.workers import compute_scene_flow_on
 from processing.chain import ChainParameters, ChainState, StereoGeometry
 from processing.emission.estimator import EmissionSettings
 from processing.emission.gas import METHANE, load_gas
@@ -117,7 +112,7 @@ def run_segments(
         Run at the recorded pace (for watching live) instead of as fast as possible.
     on_triple : callable, optional
         Called with the running report after each triple (progress display).
-    emission : appliance.runtime.workers.EmissionSetup, optional
+    emission : appliance.runtime.emission_setup.EmissionSetup, optional
         Compute every triple's emission rate (its background model starts anew with each
         segment, like the chain).
 

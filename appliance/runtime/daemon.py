@@ -42,12 +42,13 @@ from appliance.live.fanout import views_of
 from appliance.memory import PeriodicTrim
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.banner import announce_end, announce_start
+from appliance.runtime.emission_setup import emission_setup
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.metrics import metrics_text
 from appliance.runtime.page_service import start_page, stop_page
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.workers import WorkerResult, emission_setup
+from appliance.runtime.worker_result import WorkerResult
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")

@@ -22,7 +22,8 @@ from appliance.config import Config
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
 from appliance.runtime.shiftshare import create_shift_table
-from appliance.runtime.workers import WorkerResult, worker_main
+from appliance.runtime.worker_result import WorkerResult
+from appliance.runtime.workers import worker_main
 from processing.chain.driver import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -45,7 +46,7 @@ class WorkerPool:
     params : ChainParameters
         Parameters of the scene-flow chain, the same for every worker.
     emission : Any
-        Emission set-up for the workers (``workers.emission_setup``), or None.
+        Emission set-up for the workers (``emission_setup.emission_setup``), or None.
     handle : callable
         Called in the results thread with every :class:`WorkerResult`; an exception it raises
         is logged and the next result taken.

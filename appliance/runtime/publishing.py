@@ -1,7 +1,7 @@
 """Publishing scene-flow results: shared by ``ogiflow run`` and ``ogiflow replay``.
 
-:class:`ResultPublisher` turns a :class:`~appliance.runtime.workers.WorkerResult` into what the
-user gets: the per-frame summary (with validity and flags) and, every N-th result, the
+:class:`ResultPublisher` turns a :class:`~appliance.runtime.worker_result.WorkerResult` into
+what the user gets: the per-frame summary (with validity and flags) and, every N-th result, the
 full fields in the MCAP file, the wind in the camera frame at the pair's time, and the
 live-view item. Run and replay share it, so a replayed recording is published exactly as
 it was live.
@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from appliance.recording import schemas
-from appliance.runtime.workers import WorkerResult
+from appliance.runtime.worker_result import WorkerResult
 from processing.chain.summary import directional_angles
 from processing.emission.rate import RateEstimate, RateWindow
 
