@@ -39,16 +39,38 @@ import numpy as np
 from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.live.fanout import views_of
+from appliance.live.view import LiveView
 from appliance.memory import PeriodicTrim
-from appliance.runtime.acquisition import Counters
+from appliance.recording.clips import ClipKeeper
+from appliance.recording.metadata import file_metadata, processing_metadata
+from appliance.recording.recorder import Recorder
+from appliance.recording.recovery import recover_unfinished
+from appliance.recording.split import SplitRecorder
+from appliance.runtime.acquisition import Acquisition, Counters, camera_watch, nominal_frame_rate_hz
 from appliance.runtime.banner import announce_end, announce_start
+from appliance.runtime.counters import health_counters
 from appliance.runtime.emission_setup import emission_setup
+from appliance.runtime.health import (
+    HealthMonitor,
+    HealthReporter,
+    disk_free_source,
+    live_sink,
+    log_sink,
+    mcap_sink,
+)
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.metrics import metrics_text
+from appliance.runtime.monitor import monitor_from_config
 from appliance.runtime.page_service import start_page, stop_page
+from appliance.runtime.pool import WorkerPool
 from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 from appliance.runtime.simsite import SimulatedSite
+from appliance.runtime.single_camera import probe_image_size
 from appliance.runtime.worker_result import WorkerResult
+from drivers.anemometer.history import WindHistory
+from drivers.anemometer.mounting import Mounting
+from processing.calibration import load_calibration
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -114,8 +136,6 @@ class Appliance:
     def _geometry(self) -> StereoGeometry | None:
         """The stereo geometry (calibration, else the simulated scene's cameras); None at a
         single-camera site without either (the single-camera chain needs none)."""
-        from processing.calibration import load_calibration
-
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.site is not None and self.site.truth is not None:
@@ -220,13 +240,6 @@ class Appliance:
 
     def prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
-        from appliance.runtime.acquisition import camera_watch
-        from appliance.runtime.health import HealthMonitor
-        from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
-        from appliance.runtime.single_camera import probe_image_size
-        from drivers.anemometer.history import WindHistory
-        from drivers.anemometer.mounting import Mounting
-
         cfg = self.cfg
         self.health = HealthMonitor(cfg.health.stall_s)
         self.watch = camera_watch(cfg, self.wall_ns)
@@ -255,11 +268,6 @@ class Appliance:
         cfg = self.cfg
         if not cfg.recording.enabled:
             return
-        from appliance.recording.clips import ClipKeeper
-        from appliance.recording.metadata import file_metadata, processing_metadata
-        from appliance.recording.recorder import Recorder
-        from appliance.recording.recovery import recover_unfinished
-        from appliance.recording.split import SplitRecorder
 
         rc = cfg.recording
         rc.dir.mkdir(parents=True, exist_ok=True)
@@ -284,7 +292,6 @@ class Appliance:
     def _start_live(self, stack: contextlib.ExitStack) -> None:
         if self.cfg.live.mode == "off":
             return
-        from appliance.live.view import LiveView
 
         self.live = LiveView(self.cfg.live,
                              server_memory_limit=f"{self.cfg.live.server_memory_mb}MB",
@@ -294,8 +301,6 @@ class Appliance:
 
     def _start_processing(self, stack: contextlib.ExitStack) -> None:
         """The shared-memory ring, the worker processes and the thread that takes results."""
-        from appliance.runtime.pool import WorkerPool
-
         self.pool = WorkerPool(self.cfg, self.geometry, self.image_size, self.params,
                                self.emission, self._handle_result,
                                self.counters).start(stack, self._spawn)
@@ -316,8 +321,6 @@ class Appliance:
         stop_page(self.page_hub, self.page_server)
 
     def _make_monitor(self, stack: contextlib.ExitStack, views: Any) -> Any:
-        from appliance.runtime.acquisition import nominal_frame_rate_hz
-        from appliance.runtime.monitor import monitor_from_config
 
         assert self.site is not None
         return monitor_from_config(self.cfg, self.image_size, stack, live=views,
@@ -341,13 +344,6 @@ class Appliance:
         return None
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
-        from appliance.runtime.health import (
-            HealthReporter,
-            disk_free_source,
-            live_sink,
-            log_sink,
-            mcap_sink,
-        )
 
         sinks = [log_sink()]
         if self.recorder is not None:
@@ -367,8 +363,6 @@ class Appliance:
     def _start_acquisition(self, stack: contextlib.ExitStack) -> None:
         """Anemometer, pairing thread and camera threads (the anemometer starts once the
         recorder and publisher exist, so every sample it delivers is recorded)."""
-        from appliance.runtime.acquisition import Acquisition
-
         assert self.site is not None
         self.acquisition = Acquisition(
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
@@ -441,7 +435,6 @@ class Appliance:
         self.stop_event.set()
 
     def _health_counters(self) -> dict[str, int]:
-        from appliance.runtime.counters import health_counters
 
         return health_counters(self)
 

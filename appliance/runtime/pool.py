@@ -21,6 +21,7 @@ import numpy as np
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
+from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.worker_result import WorkerResult
 from appliance.runtime.workers import worker_main
@@ -82,8 +83,6 @@ class WorkerPool:
         ``spawn(target, name, *args)`` starts a guarded daemon thread (the daemon's, so that
         an exception escaping the results loop ends the run with exit code 1).
         """
-        from appliance.runtime.ring import PairRing
-
         w, h = self.image_size
         self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)

@@ -13,8 +13,10 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 
+from appliance.live.view import LiveFrame
 from appliance.recording import schemas
 from appliance.runtime.worker_result import WorkerResult
 from processing.chain.summary import directional_angles
@@ -222,7 +224,6 @@ class ResultPublisher:
 
     def _push_live(self, res: WorkerResult, summary: dict[str, Any], wind: np.ndarray | None,
                    truth: np.ndarray | None, t1: int) -> None:
-        from appliance.live.view import LiveFrame
 
         ok = summary["valid"]
         self.live.push(LiveFrame(
@@ -243,7 +244,6 @@ class ResultPublisher:
         ))
 
     def _record_fields(self, res: WorkerResult, t1: int) -> None:
-        import cv2
 
         wall = self.wall_ns(t1)
         # a single-camera result has its camera's I_diff (as diff_left) and no stereo fields
