@@ -42,6 +42,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation.detection import DetectionSettings, evaluate_detection
     from appliance.evaluation.labelled import format_labelled
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def _expand_presets(names: list[str] | None) -> list[str]:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.synthetic.sequences import PRESETS, TABLE2_PRESETS
 
     out: list[str] = []
@@ -117,8 +119,7 @@ def _expand_presets(names: list[str] | None) -> list[str]:
 
 
 def _build_config(name: str, args: argparse.Namespace) -> Any:
-    from dataclasses import replace
-
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.synthetic.imaging import MovingObject
     from processing.synthetic.sequences import RenderOptions, preset
 
@@ -203,6 +204,7 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
 
 def _schedule(text: str, period_s: float) -> Any:
     """``ON:OFF[,ON:OFF...]`` (s) as a release schedule over the sequence's length."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.synthetic.schedule import ReleaseSchedule
 
     try:
@@ -221,6 +223,7 @@ def _schedule(text: str, period_s: float) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Generate the requested sequences; print one summary line per sequence."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import save_calibration
     from processing.synthetic.config import synthetic_calibration
     from processing.synthetic.sequences import (

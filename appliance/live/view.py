@@ -168,6 +168,7 @@ class LiveView:
             return self
         # Before the first import of rerun: its allocator reads the setting when it loads.
         os.environ.update(with_mimalloc_purge(os.environ))
+        # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
         import rerun as rr
 
         self._rec = rr.RecordingStream(application_id=APP_ID)
