@@ -128,7 +128,6 @@ class Acquisition:
             return [self._pair_frame_ids.get(i) for i in pair_indices]
 
     def make_camera(self, side: str) -> Any:
-
         cam_cfg = getattr(self.cfg.cameras, side)
         return create_camera(cam_cfg.backend, **self.site.camera_options(side, cam_cfg))
 

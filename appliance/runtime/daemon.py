@@ -321,7 +321,6 @@ class Appliance:
         stop_page(self.page_hub, self.page_server)
 
     def _make_monitor(self, stack: contextlib.ExitStack, views: Any) -> Any:
-
         assert self.site is not None
         return monitor_from_config(self.cfg, self.image_size, stack, live=views,
                                    on_event=self._on_event,
@@ -344,7 +343,6 @@ class Appliance:
         return None
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
-
         sinks = [log_sink()]
         if self.recorder is not None:
             sinks.append(mcap_sink(self.recorder))
@@ -435,6 +433,5 @@ class Appliance:
         self.stop_event.set()
 
     def _health_counters(self) -> dict[str, int]:
-
         return health_counters(self)
 

@@ -224,7 +224,6 @@ class ResultPublisher:
 
     def _push_live(self, res: WorkerResult, summary: dict[str, Any], wind: np.ndarray | None,
                    truth: np.ndarray | None, t1: int) -> None:
-
         ok = summary["valid"]
         self.live.push(LiveFrame(
             frame=res.pair_indices[1], t_capture_ns=self.wall_ns(t1),
@@ -244,7 +243,6 @@ class ResultPublisher:
         ))
 
     def _record_fields(self, res: WorkerResult, t1: int) -> None:
-
         wall = self.wall_ns(t1)
         # a single-camera result has its camera's I_diff (as diff_left) and no stereo fields
         own = res.single_camera or "left"
