@@ -268,7 +268,7 @@ def _environ_of(pid: int) -> dict[str, str]:
 def test_rerun_allocator_returns_freed_memory_at_once(monkeypatch: pytest.MonkeyPatch,
                                                       preset: str | None) -> None:
     # mimalloc (inside the Rerun SDK and the viewer server) otherwise kept the memory of a
-    # browser session for the rest of the run (runtime/tuning.py); a site's value wins.
+    # browser session for the rest of the run (appliance/memory.py); a site's value wins.
     monkeypatch.setenv("MIMALLOC_PURGE_DELAY", preset or "")  # restored after the test
     if preset is None:
         monkeypatch.delenv("MIMALLOC_PURGE_DELAY")

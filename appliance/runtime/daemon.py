@@ -19,9 +19,9 @@ queue that drops when full; so has the operator's page, and each of its browsers
 Where each box lives: camera and pairing threads and the raw wind recording in
 ``runtime.acquisition``; the worker pool (ring, worker processes, results thread) in
 ``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; result
-publishing in ``runtime.publishing``; recorder in ``recording.recorder``; live view in
-``live.view``; the operator's page in ``page``; health in ``runtime.health``; the simulated
-site in ``runtime.simsite``.
+publishing in ``runtime.publishing``; recorder in ``recording.recorder`` (started by
+``runtime.recorder_start``); live view in ``live.view``; the operator's page in ``page``;
+health in ``runtime.health``; the simulated site in ``runtime.simsite``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ import logging
 import signal
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,11 +40,6 @@ from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.live.fanout import views_of
 from appliance.live.view import LiveView
 from appliance.memory import PeriodicTrim
-from appliance.recording.clips import ClipKeeper
-from appliance.recording.metadata import file_metadata, processing_metadata
-from appliance.recording.recorder import Recorder
-from appliance.recording.recovery import recover_unfinished
-from appliance.recording.split import SplitRecorder
 from appliance.runtime.acquisition import Acquisition, Counters, camera_watch, nominal_frame_rate_hz
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.counters import health_counters
@@ -64,6 +58,7 @@ from appliance.runtime.monitor import monitor_from_config
 from appliance.runtime.page_service import start_page, stop_page
 from appliance.runtime.pool import WorkerPool
 from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.recorder_start import start_recorder
 from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.single_camera import probe_image_size
@@ -265,28 +260,10 @@ class Appliance:
         self._previous_handlers: dict[int, Any] = {}
 
     def _start_recording(self, stack: contextlib.ExitStack) -> None:
-        cfg = self.cfg
-        if not cfg.recording.enabled:
+        if not self.cfg.recording.enabled:
             return
-
-        rc = cfg.recording
-        rc.dir.mkdir(parents=True, exist_ok=True)
-        for folder in (rc.dir, rc.dir / "raw", rc.dir / "data"):
-            for rep in recover_unfinished(folder):
-                log.warning("recovered %s after a crash", rep)
-        cal_text = Path(cfg.calibration).read_text() if cfg.calibration is not None else None
-        metadata = file_metadata(cfg, cal_text)
-        if self.geometry is not None:
-            metadata.update(processing_metadata(self.geometry, self.params))
-        if self.emission is not None:  # replay computes the rate as this run did
-            metadata["emission"] = {"json": self.emission.to_json()}
-        if rc.split:
-            self.clips = ClipKeeper(rc.dir / "raw", rc.dir / "events", pre_s=rc.pre_trigger_s,
-                                    post_s=rc.post_trigger_s, quota_gb=rc.events_quota_gb)
-            stack.callback(self.clips.close)  # after the recorder: its last raw file too
-            self.recorder = SplitRecorder(rc, metadata).start()
-        else:
-            self.recorder = Recorder(rc, metadata).start()
+        self.recorder, self.clips = start_recorder(self.cfg, self.geometry, self.params,
+                                                   self.emission, stack)
         stack.callback(self._close_recorder)
 
     def _start_live(self, stack: contextlib.ExitStack) -> None:
