@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from appliance import __version__
 from appliance.exitcodes import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
+from appliance.memory import keep_freed_memory
 
 #: Modules that each register one subcommand (or one member of a group such as ``eval``).
 COMMAND_MODULES: tuple[str, ...] = (
@@ -67,8 +69,6 @@ def command_group(
 def write_json(path: Path, obj: object) -> None:
     """Write a command's ``--json`` result (indented, parent folders made); a failure is a
     :class:`CommandError` naming the file."""
-    import json
-
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(obj, indent=2) + "\n")
@@ -98,8 +98,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``ogiflow`` console script; returns the process exit code."""
-    from appliance.memory import keep_freed_memory
-
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command != "run":

@@ -16,7 +16,7 @@ from appliance.runtime.acquisition import Acquisition, Counters
 from appliance.runtime.health import HealthMonitor
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.stamping import StereoStamper
-from appliance.runtime.workers import WorkerResult
+from appliance.runtime.worker_result import WorkerResult
 from drivers.anemometer.base import WindSample
 from drivers.camera.base import Frame
 

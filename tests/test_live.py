@@ -268,7 +268,7 @@ def _environ_of(pid: int) -> dict[str, str]:
 def test_rerun_allocator_returns_freed_memory_at_once(monkeypatch: pytest.MonkeyPatch,
                                                       preset: str | None) -> None:
     # mimalloc (inside the Rerun SDK and the viewer server) otherwise kept the memory of a
-    # browser session for the rest of the run (runtime/tuning.py); a site's value wins.
+    # browser session for the rest of the run (appliance/memory.py); a site's value wins.
     monkeypatch.setenv("MIMALLOC_PURGE_DELAY", preset or "")  # restored after the test
     if preset is None:
         monkeypatch.delenv("MIMALLOC_PURGE_DELAY")
@@ -318,7 +318,7 @@ def test_display_conversions() -> None:
 
 def test_a_frame_without_pictures_never_replaces_one_with_them(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """Workers send the full fields only when asked (``workers.pack_result``): the one
+    """Workers send the full fields only when asked (``worker_result.pack_result``): the one
     frame with pictures must reach the screen even when plot-only frames follow it."""
     view = LiveView(_cfg(mode="save", file=tmp_path / "x.rrd"), max_image_hz=1000.0)
     shown: list[tuple[int, bool]] = []

@@ -13,7 +13,7 @@ import pytest
 
 from appliance.recording import schemas as S
 from appliance.runtime.publishing import ResultPublisher
-from appliance.runtime.workers import WorkerResult
+from appliance.runtime.worker_result import WorkerResult
 from drivers.anemometer.history import WindAt
 
 H, W = 6, 8

@@ -8,7 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from appliance.runtime.workers import WorkerResult, pack_result, share_of_stream
+from appliance.runtime.worker_result import WorkerResult, pack_result
+from appliance.runtime.workers import share_of_stream
 
 
 def test_two_workers_take_every_other_triple_one_or_many_take_all() -> None:

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import paho.mqtt.client as mqtt
+
 from appliance.alarms.sink import AlarmSink, SinkStats
 from appliance.alarms.throttle import EventThrottle
 
@@ -94,8 +96,6 @@ class MqttSink(AlarmSink):
     """
 
     def __init__(self, cfg: MqttConfig) -> None:
-        import paho.mqtt.client as mqtt
-
         self.cfg = cfg
         self._events: collections.deque[tuple[str, bytes, int, bool]] = collections.deque()
         self._summaries: collections.deque[bytes] = collections.deque(maxlen=5)

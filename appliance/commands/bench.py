@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -73,6 +74,7 @@ def _check_args(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     """Measure and print (and optionally write) the chain's speed."""
     _check_args(args)
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import benchmark as bm
 
     load_start = bm.load_average()
@@ -153,6 +155,4 @@ def _fmt_load(load: tuple[float, float, float]) -> str:
 
 
 def _cpu_count() -> int:
-    import os
-
     return os.cpu_count() or 1

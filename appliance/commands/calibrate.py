@@ -13,6 +13,8 @@ import dataclasses
 import re
 from pathlib import Path
 
+import numpy as np
+
 from appliance import cli
 
 DEFAULT_OUT = "calibration.yaml"
@@ -118,14 +120,13 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def _fmt_matrix(m: object, indent: str = "    ") -> str:
-    import numpy as np
-
     arr = np.atleast_2d(np.asarray(m, dtype=float))
     return "\n".join(indent + "  ".join(f"{v:12.5f}" for v in row) for row in arr)
 
 
 def run_stereo(args: argparse.Namespace) -> int:
     """Detect, calibrate, report and write the calibration."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import (
         PatternSpec,
         calibrate_stereo_images,
@@ -217,8 +218,7 @@ def _parse_floats(text: str, what: str) -> list[float]:
 
 def run_radiometric(args: argparse.Namespace) -> int:
     """Fit and report both cameras' characteristic curves and write them."""
-    import numpy as np
-
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import (
         RadiometricCalibration,
         band_radiance,

@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from appliance import cli
 from appliance.commands.calibrate import _parse_floats, temperature_folders
 
@@ -61,8 +63,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def _mean_radiance(directory: Path, curve: object, roi: float) -> float:
-    import numpy as np
-
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import roi_means
     from processing.calibration.files import list_images, read_image
     from processing.calibration.radiometric import apply_characteristic_curve
@@ -79,6 +80,7 @@ def _mean_radiance(directory: Path, curve: object, roi: float) -> float:
 
 def run(args: argparse.Namespace) -> int:
     """Read the frames, fit alpha_g, report and write the gas file."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import band_radiance, load_radiometric
     from processing.calibration.radiometric import celsius_to_kelvin
     from processing.emission.gas import MOLAR_MASS_KG_MOL, GasProperties, save_gas

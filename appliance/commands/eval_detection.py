@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from appliance import cli
+from appliance.runtime.event_config import EventConfig
 
 _HELP = """\
 Run the chain and the daemon's leak-event logic over every image set under --data: folders
@@ -22,8 +23,6 @@ against the labelled box, apparent size and its rank correlation with the rate.
 
 
 def register(root: argparse._SubParsersAction) -> None:
-    from appliance.runtime.events import EventConfig
-
     group = cli.command_group(root, "eval", "evaluate the method on reference data")
     p = group.add_parser("detection", help="leak events over recorded image sets",
                          description=_HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -43,9 +42,9 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation.detection import DetectionSettings, evaluate_detection
     from appliance.evaluation.labelled import format_labelled
-    from appliance.runtime.events import EventConfig
 
     if not args.fps > 0:
         raise ValueError(f"--fps must be > 0, got {args.fps}")

@@ -46,6 +46,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate every sequence under --data; print the table, write JSON and figures."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import emission as ev
     from processing.synthetic.storage import SequenceFormatError
 

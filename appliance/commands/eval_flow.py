@@ -41,6 +41,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation.flow import (
         evaluate_flow,
         flow_methods,

@@ -107,6 +107,7 @@ def _print_report(report: FootageReport, settings: FootageSettings) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     import cv2
 
     from appliance.evaluation.footage import FootageSettings, evaluate_footage, make_figure

@@ -48,6 +48,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate the matrix; print the table and the acceptance check, write JSON."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import robustness as rb
     from appliance.runtime.simsite import cache_root
 

@@ -65,6 +65,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate every sequence in --data; print the table, write JSON and figures."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import sceneflow as ev
     from appliance.evaluation.sceneflow_figures import write_figures
     from processing.synthetic.storage import SequenceFormatError

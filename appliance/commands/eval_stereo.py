@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_disparity <= 0 or args.max_disparity % 16:
         raise ValueError(f"--max-disparity must be a positive multiple of 16, "
                          f"got {args.max_disparity}")
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation.stereo import (
         METHOD_SGBM,
         METHOD_VARIATIONAL,

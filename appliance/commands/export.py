@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from appliance.progress import ProgressBar
+
 
 def register(root: argparse._SubParsersAction) -> None:
     p = root.add_parser("export", help="export per-frame summaries and wind to CSV, NPZ or Parquet",
@@ -35,7 +37,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.progress import ProgressBar
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.recording.reader import iter_json
     from appliance.recording.tables import (
         SUMMARY_COLUMNS,

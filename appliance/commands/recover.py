@@ -30,6 +30,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Recover ``args.file``; print what was kept."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.recording.recovery import recover
 
     if not args.file.is_file():

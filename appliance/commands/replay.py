@@ -22,10 +22,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from appliance.cli import EXIT_INTERRUPTED
+from appliance.config import live_overrides, load_config
 
 
 def register(root: argparse._SubParsersAction) -> None:
@@ -52,8 +56,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.cli import EXIT_INTERRUPTED
-    from appliance.config import live_overrides, load_config
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.reprocess.segments import cut_segments, process_into
     from appliance.reprocess.sink import McapSink
     from appliance.reprocess.source import (
@@ -63,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         load_parameters,
         parse_override,
     )
-    from appliance.runtime.workers import _single_threaded
+    from appliance.runtime.workers import single_threaded
 
     src: Path = args.file
     rec = Recording.open(src)
@@ -78,11 +81,12 @@ def run(args: argparse.Namespace) -> int:
     segments = [cut_segments([], None)[0]]
     if args.segment_s is not None:
         segments = cut_segments([p.time_ns for _i, p in PairStream(rec)], args.segment_s)
-    _single_threaded()  # bit-identical to reprocess, whose tasks run one thread each
+    single_threaded()  # bit-identical to reprocess, whose tasks run one thread each
 
     sink = McapSink(out, rec.output_metadata(params, args.segment_s))
     live = None
     if args.live != ["off"]:
+        # Only with a live view (rerun costs ~1-2 s to import).
         from appliance.live.view import LiveView
 
         live = LiveView(load_config(None, live_overrides(args.live)).live).start()
@@ -127,6 +131,4 @@ def run(args: argparse.Namespace) -> int:
 
 def _open_ended(segments: list[Any]) -> list[Any]:
     """The last segment runs to the end of the file, whatever its planned end."""
-    from dataclasses import replace
-
     return [*segments[:-1], replace(segments[-1], stop=2**62)]

@@ -20,6 +20,9 @@ import argparse
 import os
 from pathlib import Path
 
+from appliance.cli import EXIT_FAILURE, EXIT_INTERRUPTED
+from appliance.progress import ProgressBar
+
 
 def register(root: argparse._SubParsersAction) -> None:
     p = root.add_parser("reprocess", help="reprocess many recordings on all cores or a Ray "
@@ -46,8 +49,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.cli import EXIT_FAILURE, EXIT_INTERRUPTED
-    from appliance.progress import ProgressBar
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.reprocess.jobs import expand_inputs, make_jobs, parameter_grid
     from appliance.reprocess.runner import Runner, import_ray, print_summary
 
@@ -79,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _check_parameters(grid: list[dict]) -> None:
     """Unknown or invalid parameter values fail now, not in every task."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.chain import ChainParameters
 
     for combo in grid:

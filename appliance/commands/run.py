@@ -17,11 +17,10 @@ import logging
 import sys
 
 from appliance.cli import CommandError
+from appliance.config import ConfigError, add_config_arguments, config_from_args
 
 
 def register(root: argparse._SubParsersAction) -> None:
-    from appliance.config import add_config_arguments
-
     p = root.add_parser("run", help="run the appliance (acquire, process, record, serve)",
                         description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -40,7 +39,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from appliance.config import ConfigError, config_from_args
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.live.view import LiveViewError
     from appliance.runtime.daemon import Appliance
     from appliance.runtime.warmup import warm_up

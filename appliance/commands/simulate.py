@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,7 @@ def register(root: argparse._SubParsersAction) -> None:
 
 
 def _expand_presets(names: list[str] | None) -> list[str]:
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.synthetic.sequences import PRESETS, TABLE2_PRESETS
 
     out: list[str] = []
@@ -117,10 +119,25 @@ def _expand_presets(names: list[str] | None) -> list[str]:
 
 
 def _build_config(name: str, args: argparse.Namespace) -> Any:
-    from dataclasses import replace
+    """The scene of preset ``name`` with the command line's changes (ValueError: out of
+    range), validated."""
+    cfg = _preset_scene(name, args)
+    cfg = _run_settings(cfg, args)
+    cfg = replace(cfg, options=_render_options(cfg.options, args))
+    if args.release_schedule:
+        if not cfg.fluid.sources:
+            raise ValueError(f"--release-schedule: preset {name} releases no gas")
+        cfg = replace(cfg, release_schedule=_schedule(args.release_schedule,
+                                                      cfg.n_frames * cfg.frame_interval_s))
+    cfg.validate()
+    return cfg
 
-    from processing.synthetic.imaging import MovingObject
-    from processing.synthetic.sequences import RenderOptions, preset
+
+def _preset_scene(name: str, args: argparse.Namespace) -> Any:
+    """The preset with the scene's geometry, wind, release and grid from the command line
+    (the field preset takes them as its own parameters, the others as replaced fields)."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
+    from processing.synthetic.sequences import preset
 
     kwargs: dict[str, Any] = {}
     if name == "field":
@@ -159,7 +176,11 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
         shape = tuple(max(8, round(n * args.grid_scale)) for n in fluid.shape)
         voxel = fluid.voxel_m * fluid.shape[2] / shape[2]
         fluid = replace(fluid, shape=shape, voxel_m=voxel)
-    cfg = replace(cfg, fluid=fluid)
+    return replace(cfg, fluid=fluid)
+
+
+def _run_settings(cfg: Any, args: argparse.Namespace) -> Any:
+    """Frames, seed, spin-up, NECL, gas temperature and background from the command line."""
     if args.frames is not None:
         if args.frames < 1:
             raise ValueError(f"--frames must be >= 1, got {args.frames}")
@@ -181,9 +202,17 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
         cfg = replace(cfg, radiometry=replace(cfg.radiometry, t_gas_k=args.gas_temperature))
     if args.background is not None:
         cfg = replace(cfg, background=replace(cfg.background, kind=args.background))
-    cfg = replace(cfg, background=replace(cfg.background, seed=cfg.seed))
-    base = cfg.options  # the preset's own effects (no_release), else none
-    opts = RenderOptions(
+    return replace(cfg, background=replace(cfg.background, seed=cfg.seed))
+
+
+def _render_options(base: Any, args: argparse.Namespace) -> Any:
+    """The camera effects: the command line's over the preset's own (``base``: its
+    no_release and moving object, else none)."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
+    from processing.synthetic.imaging import MovingObject
+    from processing.synthetic.sequences import RenderOptions
+
+    return RenderOptions(
         noise_netd_k=base.noise_netd_k if args.noise is None else args.noise,
         jitter_px=base.jitter_px if args.jitter is None else args.jitter,
         radiometric_mismatch=args.radiometric_mismatch,
@@ -191,18 +220,11 @@ def _build_config(name: str, args: argparse.Namespace) -> Any:
         lens_k1=args.lens_k1,
         moving_object=base.moving_object or (MovingObject() if args.moving_object else None),
     )
-    cfg = replace(cfg, options=opts)
-    if args.release_schedule:
-        if not cfg.fluid.sources:
-            raise ValueError(f"--release-schedule: preset {name} releases no gas")
-        cfg = replace(cfg, release_schedule=_schedule(args.release_schedule,
-                                                      cfg.n_frames * cfg.frame_interval_s))
-    cfg.validate()
-    return cfg
 
 
 def _schedule(text: str, period_s: float) -> Any:
     """``ON:OFF[,ON:OFF...]`` (s) as a release schedule over the sequence's length."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.synthetic.schedule import ReleaseSchedule
 
     try:
@@ -221,6 +243,7 @@ def _schedule(text: str, period_s: float) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Generate the requested sequences; print one summary line per sequence."""
+    # Imported when the command runs: the CLI imports every command module for its parser.
     from processing.calibration import save_calibration
     from processing.synthetic.config import synthetic_calibration
     from processing.synthetic.sequences import (

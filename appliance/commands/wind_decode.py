@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import csv
+import json
 import math
 from pathlib import Path
 
 from appliance import cli
+from drivers.anemometer.registry import PROTOCOLS, make_decoder
 
 COUNT_LABELS = (
     ("valid", "valid samples"),
@@ -36,8 +39,6 @@ COLUMNS = (
 
 
 def register(root: argparse._SubParsersAction) -> None:
-    from drivers.anemometer.registry import PROTOCOLS
-
     group = cli.command_group(root, "wind", "anemometer tools: decode captured serial streams")
     p = group.add_parser(
         "decode",
@@ -73,8 +74,6 @@ def _clean(value: object) -> object:
 
 def decode_file(protocol: str, path: Path) -> tuple[dict[str, int], list[dict[str, object]]]:
     """Decode ``path`` with ``protocol``; return (counts, samples as dicts of COLUMNS)."""
-    from drivers.anemometer.registry import make_decoder
-
     decoder = make_decoder(protocol)
     samples = []
     with path.open("rb") as fh:
@@ -90,9 +89,6 @@ def decode_file(protocol: str, path: Path) -> tuple[dict[str, int], list[dict[st
 
 
 def run(args: argparse.Namespace) -> int:
-    import csv
-    import json
-
     if not args.file.is_file():
         raise ValueError(f"no such file: {args.file}")
     counts, rows = decode_file(args.protocol, args.file)

@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from processing.chain import StereoGeometry
@@ -100,8 +101,6 @@ def field_frames(n_frames: int = 16, seed: int = 7) -> BenchFrames:
 
 def _smooth_texture(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
     """Zero-mean, unit-std smooth random texture (float32)."""
-    import cv2
-
     tex = cv2.GaussianBlur(rng.normal(size=shape).astype(np.float32), (0, 0), sigma)
     return (tex - tex.mean()) / tex.std()
 
@@ -114,8 +113,6 @@ def blob_frames(n_frames: int = 16, seed: int = 0) -> BenchFrames:
     away (disparity 28.4 px), moving (+4, -2) px per frame and absorbing up to ~600 counts.
     Noise: Gaussian, 15 counts (NETD-like). Counts as uint16.
     """
-    import cv2
-
     w, h = IMAGE_SIZE
     rng = np.random.default_rng(seed)
     pad = 64

@@ -21,7 +21,9 @@ Measures, in one run on one input (:mod:`appliance.evaluation.bench_input`):
 
 from __future__ import annotations
 
+import multiprocessing as mp
 import os
+import queue
 import statistics
 import time
 from dataclasses import dataclass
@@ -39,6 +41,7 @@ from appliance.evaluation.bench_input import (
     load_frames,
 )
 from appliance.memory import keep_freed_memory
+from appliance.runtime.workers import single_threaded
 from processing.chain import ChainParameters, ChainState, compute_scene_flow
 from processing.chain.state import STRIDES
 from processing.flow.opencv import farneback_flow
@@ -58,17 +61,8 @@ STAGES: tuple[str, ...] = (
 def single_thread() -> None:
     """Set a process up as the appliance's workers are: OpenCV and numba on one thread (the
     targets are per core) and glibc's allocator tuned (:mod:`appliance.memory`)."""
-    import cv2
-
-
     keep_freed_memory()
-    cv2.setNumThreads(1)
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except (ImportError, ValueError):
-        pass
+    single_threaded()
 
 
 @dataclass(frozen=True)
@@ -235,9 +229,6 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
     All workers start together after their own warm-up (a barrier); the wall time is the
     longest of theirs (each stops after the first triple completed past ``seconds``).
     """
-    import multiprocessing as mp
-    import queue
-
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     if not seconds > 0:

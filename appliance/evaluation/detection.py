@@ -282,14 +282,6 @@ def evaluate_detection(data: Path, settings: DetectionSettings) -> dict[str, dic
     return out
 
 
-def frames_in_events(report: dict[str, Any]) -> np.ndarray:
-    """Frame numbers covered by the set's events (for per-frame scoring)."""
-    covered: list[int] = []
-    for e in report["events"]:
-        covered.extend(range(e["start_frame"], (e["end_frame"] or e["start_frame"]) + 1))
-    return np.asarray(sorted(set(covered)), dtype=int)
-
-
 def simulated_frames(config: Any, every: int = 1) -> Iterator[Any]:
     """Frames of a synthetic sequence rendered on the fly, for :func:`detect_frames`.
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from appliance.evaluation.robustness import FIELD_DISPARITY_OPTIONS
@@ -310,8 +311,6 @@ def public(results: dict[str, dict[str, Any]]) -> dict[str, Any]:
 def write_figure(directory: Path, name: str, record: dict[str, Any]) -> Path:
     """``<name>_rate.png``: true flux, stereo and single-camera rate (and the true release)
     per triple, g/s."""
-    import cv2
-
 
     s = record["series"]
     img = _line_panel({"reference": s["truth"], "proposed": s["stereo"],

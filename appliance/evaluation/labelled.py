@@ -93,6 +93,7 @@ def apparent_size(raw: np.ndarray, previous: np.ndarray | None, occupancy: np.nd
 
 
 def _spearman(x: list[float], y: list[float]) -> float | None:
+    # scipy.stats costs seconds to import; only labelled sets need it.
     from scipy.stats import spearmanr
 
     if len(x) < 3 or len(set(y)) < 2:

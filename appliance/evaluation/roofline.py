@@ -22,6 +22,7 @@ The per-pass counts (float32 arrays of one colour per pixel, both colours togeth
 
 from __future__ import annotations
 
+import inspect
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -79,8 +80,6 @@ def _solver_bytes(shape: tuple[int, int], options: Mapping[str, Any], defaults: 
 
 
 def _defaults(func: Any) -> dict[str, Any]:
-    import inspect
-
     return {k: p.default for k, p in inspect.signature(func).parameters.items()
             if p.default is not inspect.Parameter.empty}
 

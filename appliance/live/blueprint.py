@@ -17,6 +17,7 @@ __all__ = ["blueprint"]
 
 def blueprint() -> Any:
     """The viewer layout (a ``rerun.blueprint.Blueprint``; rerun is imported only here)."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun.blueprint as rrb
 
     operator = rrb.Horizontal(

@@ -37,6 +37,7 @@ ARROW_SCALE_S = 0.2
 
 def log_styles(log: Log) -> None:
     """Static styles: series colours and names, the gas class of the operator's overlay."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     for quantity in ("speed", "angle/x", "angle/y", "angle/z"):
@@ -57,6 +58,7 @@ def log_styles(log: Log) -> None:
 
 def log_image(log: Log, path: str, bgr_or_gray: np.ndarray, jpeg_quality: int) -> None:
     """An image as JPEG (raw uint16 would be 9.4 MB/s at 2 x 30 Hz)."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     data = encode_jpeg(bgr_or_gray, jpeg_quality)
@@ -66,6 +68,7 @@ def log_image(log: Log, path: str, bgr_or_gray: np.ndarray, jpeg_quality: int) -
 def log_pictures(log: Log, f: LiveFrame, jpeg_quality: int) -> None:
     """The frame's pictures: operator's IR view, differential images, flow, disparity, gas
     mask and the 3D velocity arrows at the virtual gas surface."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     log_operator(log, f, jpeg_quality)
@@ -93,6 +96,7 @@ def log_pictures(log: Log, f: LiveFrame, jpeg_quality: int) -> None:
 
 def log_plots(log: Log, f: LiveFrame) -> None:
     """Gas, wind and (simulated) true speed and directional angles (paper Fig. 8)."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     for src, speed, angles in (("gas", f.gas_speed_m_s, f.gas_angles_deg),
@@ -108,6 +112,7 @@ def log_plots(log: Log, f: LiveFrame) -> None:
 
 def log_operator(log: Log, f: LiveFrame, jpeg_quality: int) -> None:
     """The operator's picture: raw IR, the gas region in colour, in-plane velocity."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     if f.raw_left is None:
@@ -124,6 +129,7 @@ def log_operator(log: Log, f: LiveFrame, jpeg_quality: int) -> None:
 
 def log_status(log: Log, s: OperatorStatus) -> None:
     """The operator's status and event list (Markdown), emission rate and wind plots."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     log("operator/status", rr.TextDocument(status_markdown(s),
@@ -139,6 +145,7 @@ def log_status(log: Log, s: OperatorStatus) -> None:
 
 def log_scalars(log: Log, s: LiveScalars) -> None:
     """Scalars under ``prefix/<name>`` (health), non-finite values left out."""
+    # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
     import rerun as rr
 
     for name, value in s.values.items():

@@ -76,7 +76,7 @@ class LiveFrame:
     @property
     def has_pictures(self) -> bool:
         """Whether it carries the pictures (differential images, disparity, IR): results
-        without them (``workers.pack_result``) feed the plots only."""
+        without them (``worker_result.pack_result``) feed the plots only."""
         return any(a is not None for a in (self.diff_left, self.diff_right, self.disparity,
                                            self.raw_left))
 

@@ -93,7 +93,6 @@ class LiveView:
         self._rec: Any = None
         self._server: ViewerServer | None = None
         self._memory_limit = server_memory_limit
-        self._styled: set[str] = set()
         self._image_period_ns = int(1e9 / max_image_hz) if max_image_hz > 0 else 0
         self._pending_blueprint: Any = None
         self._last_image_ns = 0
@@ -168,6 +167,7 @@ class LiveView:
             return self
         # Before the first import of rerun: its allocator reads the setting when it loads.
         os.environ.update(with_mimalloc_purge(os.environ))
+        # rerun is imported only when a live view starts (it costs ~1-2 s and memory).
         import rerun as rr
 
         self._rec = rr.RecordingStream(application_id=APP_ID)

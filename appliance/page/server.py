@@ -116,6 +116,7 @@ class _HttpLog(logging.LoggerAdapter):
         self.stats, self.lock = stats, lock
 
     def log(self, level: int, msg: object, *args: Any, **kwargs: Any) -> None:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp.http_exceptions import HttpProcessingError
 
         exc = kwargs.get("exc_info")
@@ -214,6 +215,7 @@ class PageServer:
             loop.close()
 
     async def _setup(self, sock: socket.socket) -> None:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         @web.middleware
@@ -292,6 +294,7 @@ class PageServer:
 
     async def _guard(self, request: Any, handler: Any) -> Any:
         """Security headers on everything; a request body the page never sends: 413."""
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         if request.content_length is not None and request.content_length > MAX_BODY:
@@ -306,6 +309,7 @@ class PageServer:
         return resp
 
     async def _static_route(self, request: Any) -> Any:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         body, ctype = self._static[request.path]
@@ -313,12 +317,14 @@ class PageServer:
                             headers=self._headers())
 
     async def _status(self, request: Any) -> Any:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         return web.Response(text=json_text(self.hub.status()), content_type="application/json",
                             headers=self._headers())
 
     async def _frame(self, request: Any) -> Any:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         enc = self.hub.frame(int(request.match_info["seq"]))
@@ -333,6 +339,7 @@ class PageServer:
             "X-Capture-Time-Ns": str(enc.t_capture_ns), "X-Frame": str(enc.frame)}))
 
     async def _metrics(self, request: Any) -> Any:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         if self.metrics is None:
@@ -341,6 +348,7 @@ class PageServer:
         return web.Response(body=body, headers=self._headers({"Content-Type": ctype}))
 
     async def _events(self, request: Any) -> Any:
+        # aiohttp (~0.8 s to import) only when the operator's page is served.
         from aiohttp import web
 
         with self._lock:

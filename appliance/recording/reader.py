@@ -16,6 +16,8 @@ from typing import Any
 
 from mcap.exceptions import InvalidMagic, McapError
 from mcap.reader import NonSeekingReader
+from mcap.records import Chunk, DataEnd, Message, Metadata
+from mcap.stream_reader import StreamReader
 from zstandard import ZstdError
 
 
@@ -99,9 +101,6 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     Reads records until the first data chunk, so it is cheap on large files and works on
     files cut by a crash.
     """
-    from mcap.records import Chunk, DataEnd, Message, Metadata
-    from mcap.stream_reader import StreamReader
-
     out: dict[str, dict[str, str]] = {}
     try:
         with open(path, "rb") as f:

@@ -81,6 +81,7 @@ def to_arrow(rows: Sequence[Mapping[str, Any]], columns: Iterable[str]) -> Any:
     Integer, boolean and text columns get their types; everything else is float64 (None
     -> null). A ``t_wall_ns`` column also gives a ``time`` column (timestamp ns, UTC).
     """
+    # pyarrow only for the tables of export and reprocess (not the daemon).
     import pyarrow as pa
 
     names = list(columns)
@@ -106,6 +107,7 @@ def to_arrow(rows: Sequence[Mapping[str, Any]], columns: Iterable[str]) -> Any:
 
 def write_parquet(path: Path, rows: Sequence[Mapping[str, Any]], columns: Iterable[str]) -> Path:
     """Write ``rows`` (see :func:`to_arrow`) as one Parquet file (zstd), atomically."""
+    # pyarrow only for the tables of export and reprocess (not the daemon).
     import pyarrow.parquet as pq
 
     path.parent.mkdir(parents=True, exist_ok=True)

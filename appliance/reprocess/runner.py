@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import appliance
 from appliance.reprocess.jobs import Job
 from appliance.reprocess.manifest import Manifest
 from appliance.reprocess.tasks import merge_task, plan_task, segment_paths, segment_task
@@ -71,8 +72,6 @@ def import_ray() -> Any:
 
 def _runtime_env() -> dict[str, Any]:
     """Workers import the same ogiflow as this driver when it runs from a source tree."""
-    import appliance
-
     root = Path(appliance.__file__).resolve().parent.parent
     if "site-packages" in root.parts or "dist-packages" in root.parts:
         return {}
@@ -232,6 +231,7 @@ class Runner:
 
     def write_table(self, swept: Sequence[str]) -> Path | None:
         """One Parquet table of every finished job's summaries (``OUT/summaries.parquet``)."""
+        # pyarrow only for the tables of export and reprocess (not the daemon).
         import pyarrow as pa
         import pyarrow.parquet as pq
 

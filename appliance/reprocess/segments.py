@@ -28,15 +28,10 @@ from typing import Any
 import numpy as np
 
 from appliance.reprocess.source import PairStream, Recording, read_wind, wind_history
+from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
 from appliance.runtime.publishing import ResultPublisher
-from appliance.runtime.workers import (
-    NO_RADIOMETRY,
-    EmissionSetup,
-    WorkerResult,
-    compute_scene_flow_on,
-    emission_rate,
-    pack_result,
-)
+from appliance.runtime.worker_result import WorkerResult, pack_result
+from appliance.runtime.workers import compute_scene_flow_on
 from processing.chain import ChainParameters, ChainState, StereoGeometry
 from processing.emission.estimator import EmissionSettings
 from processing.emission.gas import METHANE, load_gas
@@ -117,7 +112,7 @@ def run_segments(
         Run at the recorded pace (for watching live) instead of as fast as possible.
     on_triple : callable, optional
         Called with the running report after each triple (progress display).
-    emission : appliance.runtime.workers.EmissionSetup, optional
+    emission : appliance.runtime.emission_setup.EmissionSetup, optional
         Compute every triple's emission rate (its background model starts anew with each
         segment, like the chain).
 
@@ -134,9 +129,8 @@ def run_segments(
     window: collections.deque[tuple[int, Any]] = collections.deque(maxlen=3)
     state = ChainState()
     estimator = None if emission is None else emission.estimator(geometry)
+    pacer = _Pacer() if pace else None
     t_start = time.monotonic()
-    t_first: int | None = None
-    t_pace = t_start
     for index, pair in _until(pairs, owner.last_needed):
         if owner.records_pair(index):
             publisher.record_pair(index, pair)
@@ -148,33 +142,10 @@ def run_segments(
             state = ChainState()  # cold start at every segment border (module docstring)
             estimator = None if emission is None else emission.estimator(geometry)
             publisher.restart_rate_window()
-        if pace:
-            # The clock starts with the first triple, not before the set-up (loading the
-            # compiled kernels can take seconds; counted in, the first seconds of the
-            # recording would then run unpaced).
-            if t_first is None:
-                t_first, t_pace = pair.time_ns, time.monotonic()
-            ahead = (pair.time_ns - t_first) / 1e9 - (time.monotonic() - t_pace)
-            if ahead > 0:
-                time.sleep(ahead)
-        trio = [p for _, p in window]
-        t_mono = tuple(p.time_ns for p in trio)
-        base = WorkerResult(worker=0, pair_indices=(k, k + 1, k + 2), t_mono_ns=t_mono,  # type: ignore[arg-type]
-                            t_wall_ns=rec.wall_ns(t_mono[1]), skipped=0, done_mono_ns=0)
-        left = np.stack([p.left.image for p in trio]).astype(np.uint16, copy=False)
-        right = np.stack([p.right.image for p in trio]).astype(np.uint16, copy=False)
-        try:
-            res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
-            pack_result(res, base)
-            if estimator is not None and emission is not None:
-                base.rate = emission_rate(estimator, left[1], res, emission.temperature_k())
-            elif emission is not None:
-                base.rate = NO_RADIOMETRY
-            report.triples += 1
-        except ValueError as exc:
-            base.error = str(exc)
-            report.failed += 1
-            report.errors.append(f"pairs {(k, k + 1, k + 2)}: {exc}")
+        if pacer is not None:
+            pacer.wait(pair.time_ns)
+        base = _process_triple(rec, k, [p for _, p in window], geometry, params, state,
+                               estimator, emission, report)
         publisher.publish(base, fields=(k + 1) % fields_every == 0)
         if on_triple is not None:
             on_triple(report)
@@ -182,6 +153,53 @@ def run_segments(
     report.unpaired = dict(pairs.unpaired)
     report.seconds = time.monotonic() - t_start
     return report
+
+
+class _Pacer:
+    """Sleeps so that pairs come at their recorded pace.
+
+    The clock starts with the first triple, not before the set-up (loading the compiled
+    kernels can take seconds; counted in, the first seconds of the recording would then run
+    unpaced).
+    """
+
+    def __init__(self) -> None:
+        self._t_first: int | None = None
+        self._t_pace = 0.0
+
+    def wait(self, t_ns: int) -> None:
+        """Wait until the pair recorded at ``t_ns`` (ns) is due."""
+        if self._t_first is None:
+            self._t_first, self._t_pace = t_ns, time.monotonic()
+        ahead = (t_ns - self._t_first) / 1e9 - (time.monotonic() - self._t_pace)
+        if ahead > 0:
+            time.sleep(ahead)
+
+
+def _process_triple(rec: Recording, k: int, trio: list[Any], geometry: StereoGeometry,
+                    params: ChainParameters, state: ChainState, estimator: Any,
+                    emission: Any, report: SegmentReport) -> WorkerResult:
+    """The chain (and the emission rate) on the triple of pairs k, k + 1, k + 2, packed as
+    the daemon's workers pack it; a ValueError is the result's error, counted in
+    ``report``."""
+    t_mono = tuple(p.time_ns for p in trio)
+    base = WorkerResult(worker=0, pair_indices=(k, k + 1, k + 2), t_mono_ns=t_mono,  # type: ignore[arg-type]
+                        t_wall_ns=rec.wall_ns(t_mono[1]), skipped=0, done_mono_ns=0)
+    left = np.stack([p.left.image for p in trio]).astype(np.uint16, copy=False)
+    right = np.stack([p.right.image for p in trio]).astype(np.uint16, copy=False)
+    try:
+        res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
+        pack_result(res, base)
+        if estimator is not None and emission is not None:
+            base.rate = emission_rate(estimator, left[1], res, emission.temperature_k())
+        elif emission is not None:
+            base.rate = NO_RADIOMETRY
+        report.triples += 1
+    except ValueError as exc:
+        base.error = str(exc)
+        report.failed += 1
+        report.errors.append(f"pairs {(k, k + 1, k + 2)}: {exc}")
+    return base
 
 
 def process_into(

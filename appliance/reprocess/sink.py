@@ -15,6 +15,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
 from appliance import __version__
@@ -68,8 +69,6 @@ class McapSink:
 
     def copy_from(self, path: Path) -> int:
         """Copy every message of another (complete) MCAP file; returns how many."""
-        from mcap.reader import make_reader
-
         n = 0
         with open(path, "rb") as f:
             for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):

@@ -23,7 +23,7 @@ from appliance.reprocess.source import (
     load_parameters,
     read_wind,
 )
-from appliance.runtime.workers import _single_threaded
+from appliance.runtime.workers import single_threaded
 from drivers.camera.base import CameraError
 
 
@@ -59,7 +59,7 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     retries are counted, and how a test finds the worker to kill).
     """
 
-    _single_threaded()
+    single_threaded()
     seg_dir.mkdir(parents=True, exist_ok=True)
     mcap_path, rows_path, attempts = segment_paths(seg_dir, index)
     with open(attempts, "a") as f:

@@ -22,9 +22,16 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.recording import schemas
+from appliance.runtime.clock import ClockModel
 from appliance.runtime.degraded import CameraWatch
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.stamping import SIDES, StereoStamper
+from drivers.anemometer.reader import AnemometerReader
+from drivers.anemometer.registry import make_anemometer
+from drivers.camera import mcap_format
+from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
+from drivers.camera.registry import create_camera
+from drivers.camera.replay_folder import folder_frame_rate_hz
 
 log = logging.getLogger("ogiflow")
 
@@ -121,16 +128,11 @@ class Acquisition:
             return [self._pair_frame_ids.get(i) for i in pair_indices]
 
     def make_camera(self, side: str) -> Any:
-        from drivers.camera.registry import create_camera
-
         cam_cfg = getattr(self.cfg.cameras, side)
         return create_camera(cam_cfg.backend, **self.site.camera_options(side, cam_cfg))
 
     def camera_loop(self, side: str) -> None:
         """Grab frames of one camera forever; reconnect with back-off when it vanishes."""
-        from drivers.camera import mcap_format
-        from drivers.camera.base import CameraError, CameraTimeout, EndOfStream
-
         backoff = RECONNECT_BACKOFF_S[0]
         logged_at: float | None = None  # last warning of the current outage (monotonic s)
         stream = self.health.stream(f"cam/{side}")
@@ -204,8 +206,6 @@ class Acquisition:
         """Stamp frames (clock model per camera), pair them, write pairs to the ring; while
         a camera is lost (or at a single-camera site) write the other camera's frames alone.
         """
-        from appliance.runtime.clock import ClockModel
-
         stamper = StereoStamper(self.frame_rate_hz, self.cfg.pairing.tolerance_s,
                                 self.cfg.pairing.max_delay_s)
         watch = self.watch
@@ -282,9 +282,6 @@ class Acquisition:
 
     def start_anemometer(self, history: Any, mounting: Any) -> Any:
         """Create the anemometer back end and start its reader thread (returned)."""
-        from drivers.anemometer.reader import AnemometerReader
-        from drivers.anemometer.registry import make_anemometer
-
         a = self.cfg.anemometer
         options = self.site.anemometer_options()
         if a.backend == "simulated":
@@ -328,8 +325,6 @@ def nominal_frame_rate_hz(cfg: Config) -> float:
     """The frame rate of the reference camera: a replayed folder's own (its
     ``labels.json`` ``frame_interval_s``, e.g. GasVid at 1 frame/s) unless the back end's
     ``fps`` option or nothing says otherwise, else ``frame_rate_hz``."""
-    from drivers.camera.replay_folder import folder_frame_rate_hz
-
     cam = cfg.cameras.left
     assert cam is not None
     if cam.backend == "replay_folder" and "fps" not in cam.options and "path" in cam.options:

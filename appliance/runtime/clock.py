@@ -222,12 +222,6 @@ class ClockModel:
         if self._since_fit >= self.refit_every:
             self._refit_pending = True
 
-    def capture_time(self, device_ts_ns: int) -> int:
-        """Capture time (host ns) of a device timestamp under the current fit (no update)."""
-        if self._fit is None:
-            raise ValueError("no clock estimate yet: call update() first")
-        return round(self._fit.host_time(device_ts_ns)) - self.latency_ns
-
     @property
     def fit(self) -> ClockFit | None:
         """Current estimate, or None before the first sample."""

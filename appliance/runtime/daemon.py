@@ -19,9 +19,9 @@ queue that drops when full; so has the operator's page, and each of its browsers
 Where each box lives: camera and pairing threads and the raw wind recording in
 ``runtime.acquisition``; the worker pool (ring, worker processes, results thread) in
 ``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; result
-publishing in ``runtime.publishing``; recorder in ``recording.recorder``; live view in
-``live.view``; the operator's page in ``page``; health in ``runtime.health``; the simulated
-site in ``runtime.simsite``.
+publishing in ``runtime.publishing``; recorder in ``recording.recorder`` (started by
+``runtime.recorder_start``); live view in ``live.view``; the operator's page in ``page``;
+health in ``runtime.health``; the simulated site in ``runtime.simsite``.
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ import logging
 import signal
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -39,15 +38,34 @@ import numpy as np
 from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.live.fanout import views_of
+from appliance.live.view import LiveView
 from appliance.memory import PeriodicTrim
-from appliance.runtime.acquisition import Counters
+from appliance.runtime.acquisition import Acquisition, Counters, camera_watch, nominal_frame_rate_hz
 from appliance.runtime.banner import announce_end, announce_start
+from appliance.runtime.counters import health_counters
+from appliance.runtime.emission_setup import emission_setup
+from appliance.runtime.health import (
+    HealthMonitor,
+    HealthReporter,
+    disk_free_source,
+    live_sink,
+    log_sink,
+    mcap_sink,
+)
 from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
 from appliance.runtime.metrics import metrics_text
+from appliance.runtime.monitor import monitor_from_config
 from appliance.runtime.page_service import start_page, stop_page
+from appliance.runtime.pool import WorkerPool
 from appliance.runtime.publishing import ResultPublisher
+from appliance.runtime.recorder_start import start_recorder
+from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 from appliance.runtime.simsite import SimulatedSite
-from appliance.runtime.workers import WorkerResult, emission_setup
+from appliance.runtime.single_camera import probe_image_size
+from appliance.runtime.worker_result import WorkerResult
+from drivers.anemometer.history import WindHistory
+from drivers.anemometer.mounting import Mounting
+from processing.calibration import load_calibration
 from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -113,8 +131,6 @@ class Appliance:
     def _geometry(self) -> StereoGeometry | None:
         """The stereo geometry (calibration, else the simulated scene's cameras); None at a
         single-camera site without either (the single-camera chain needs none)."""
-        from processing.calibration import load_calibration
-
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.site is not None and self.site.truth is not None:
@@ -219,13 +235,6 @@ class Appliance:
 
     def prepare(self, *, full_scene: bool = False) -> None:
         """Health, watchdog, wind history, simulated site, geometry and chain parameters."""
-        from appliance.runtime.acquisition import camera_watch
-        from appliance.runtime.health import HealthMonitor
-        from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
-        from appliance.runtime.single_camera import probe_image_size
-        from drivers.anemometer.history import WindHistory
-        from drivers.anemometer.mounting import Mounting
-
         cfg = self.cfg
         self.health = HealthMonitor(cfg.health.stall_s)
         self.watch = camera_watch(cfg, self.wall_ns)
@@ -251,39 +260,15 @@ class Appliance:
         self._previous_handlers: dict[int, Any] = {}
 
     def _start_recording(self, stack: contextlib.ExitStack) -> None:
-        cfg = self.cfg
-        if not cfg.recording.enabled:
+        if not self.cfg.recording.enabled:
             return
-        from appliance.recording.clips import ClipKeeper
-        from appliance.recording.metadata import file_metadata, processing_metadata
-        from appliance.recording.recorder import Recorder
-        from appliance.recording.recovery import recover_unfinished
-        from appliance.recording.split import SplitRecorder
-
-        rc = cfg.recording
-        rc.dir.mkdir(parents=True, exist_ok=True)
-        for folder in (rc.dir, rc.dir / "raw", rc.dir / "data"):
-            for rep in recover_unfinished(folder):
-                log.warning("recovered %s after a crash", rep)
-        cal_text = Path(cfg.calibration).read_text() if cfg.calibration is not None else None
-        metadata = file_metadata(cfg, cal_text)
-        if self.geometry is not None:
-            metadata.update(processing_metadata(self.geometry, self.params))
-        if self.emission is not None:  # replay computes the rate as this run did
-            metadata["emission"] = {"json": self.emission.to_json()}
-        if rc.split:
-            self.clips = ClipKeeper(rc.dir / "raw", rc.dir / "events", pre_s=rc.pre_trigger_s,
-                                    post_s=rc.post_trigger_s, quota_gb=rc.events_quota_gb)
-            stack.callback(self.clips.close)  # after the recorder: its last raw file too
-            self.recorder = SplitRecorder(rc, metadata).start()
-        else:
-            self.recorder = Recorder(rc, metadata).start()
+        self.recorder, self.clips = start_recorder(self.cfg, self.geometry, self.params,
+                                                   self.emission, stack)
         stack.callback(self._close_recorder)
 
     def _start_live(self, stack: contextlib.ExitStack) -> None:
         if self.cfg.live.mode == "off":
             return
-        from appliance.live.view import LiveView
 
         self.live = LiveView(self.cfg.live,
                              server_memory_limit=f"{self.cfg.live.server_memory_mb}MB",
@@ -293,8 +278,6 @@ class Appliance:
 
     def _start_processing(self, stack: contextlib.ExitStack) -> None:
         """The shared-memory ring, the worker processes and the thread that takes results."""
-        from appliance.runtime.pool import WorkerPool
-
         self.pool = WorkerPool(self.cfg, self.geometry, self.image_size, self.params,
                                self.emission, self._handle_result,
                                self.counters).start(stack, self._spawn)
@@ -315,9 +298,6 @@ class Appliance:
         stop_page(self.page_hub, self.page_server)
 
     def _make_monitor(self, stack: contextlib.ExitStack, views: Any) -> Any:
-        from appliance.runtime.acquisition import nominal_frame_rate_hz
-        from appliance.runtime.monitor import monitor_from_config
-
         assert self.site is not None
         return monitor_from_config(self.cfg, self.image_size, stack, live=views,
                                    on_event=self._on_event,
@@ -340,14 +320,6 @@ class Appliance:
         return None
 
     def _start_health(self, stack: contextlib.ExitStack) -> None:
-        from appliance.runtime.health import (
-            HealthReporter,
-            disk_free_source,
-            live_sink,
-            log_sink,
-            mcap_sink,
-        )
-
         sinks = [log_sink()]
         if self.recorder is not None:
             sinks.append(mcap_sink(self.recorder))
@@ -366,8 +338,6 @@ class Appliance:
     def _start_acquisition(self, stack: contextlib.ExitStack) -> None:
         """Anemometer, pairing thread and camera threads (the anemometer starts once the
         recorder and publisher exist, so every sample it delivers is recorded)."""
-        from appliance.runtime.acquisition import Acquisition
-
         assert self.site is not None
         self.acquisition = Acquisition(
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
@@ -440,7 +410,5 @@ class Appliance:
         self.stop_event.set()
 
     def _health_counters(self) -> dict[str, int]:
-        from appliance.runtime.counters import health_counters
-
         return health_counters(self)
 

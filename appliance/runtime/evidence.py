@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from appliance.runtime.occupancy import CELL_PX, OccupancyModel, persistent_plume
@@ -28,8 +29,6 @@ def zone_mask(shape: tuple[int, int], watch: Sequence[Polygon] = (),
     -------
     ndarray, shape ``shape``, bool
     """
-    import cv2
-
     h, w = shape
     if watch:
         m = np.zeros((h, w), np.uint8)

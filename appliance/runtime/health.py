@@ -10,6 +10,7 @@ stderr line for journald) and drives the systemd watchdog and ``STATUS=`` line.
 
 from __future__ import annotations
 
+import datetime
 import logging
 import math
 import shutil
@@ -20,6 +21,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from appliance.live.view import health_scalars
+from appliance.recording.schemas import HEALTH, encode_json
 from appliance.runtime.sdnotify import SdNotifier, Watchdog
 
 __all__ = [
@@ -233,8 +236,6 @@ class HealthMonitor:
 def camera_words(snap: HealthSnapshot) -> list[str]:
     """``DEGRADED: right camera lost since 01:02:03 UTC, single-camera chain on the left``
     while a camera of the pair is lost (empty otherwise)."""
-    import datetime
-
     if snap.mode != "degraded":
         return []
     out = []
@@ -355,8 +356,6 @@ class HealthReporter:
 
 def mcap_sink(recorder: Any, topic: str = "/health") -> Callable[[HealthSnapshot], None]:
     """Sink recording each snapshot as ``ogiflow.Health`` JSON through ``recorder.record``."""
-    from appliance.recording.schemas import HEALTH, encode_json
-
     def sink(snap: HealthSnapshot) -> None:
         recorder.record(topic, HEALTH, encode_json(HEALTH, snap.to_dict()), snap.t_wall_ns)
 
@@ -365,8 +364,6 @@ def mcap_sink(recorder: Any, topic: str = "/health") -> Callable[[HealthSnapshot
 
 def live_sink(view: Any) -> Callable[[HealthSnapshot], None]:
     """Sink pushing each snapshot's numbers to the live view (``health/...`` plots)."""
-    from appliance.live.view import health_scalars
-
     def sink(snap: HealthSnapshot) -> None:
         view.push(health_scalars(snap))
 

@@ -25,6 +25,7 @@ import math
 from collections.abc import Iterator
 from typing import Any
 
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector, CollectorRegistry
 
@@ -151,8 +152,6 @@ class ApplianceCollector(Collector):
 
 def metrics_text(app: Any) -> tuple[bytes, str]:
     """The ``/metrics`` body of ``app`` and its content type."""
-    from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
-
     registry = CollectorRegistry(auto_describe=False)
     registry.register(ApplianceCollector(app))
     return generate_latest(registry), CONTENT_TYPE_LATEST

@@ -8,6 +8,7 @@ the live view's operator tab. The decisions themselves are pure
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 from collections.abc import Callable, Sequence
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from appliance.alarms.mqtt import MqttConfig, MqttSink
 from appliance.live.status import OperatorStatus, health_words
 from appliance.runtime.events import (
     EventConfig,
@@ -197,14 +199,11 @@ def monitor_from_config(cfg: Any, image_size: tuple[int, int], stack: Any, *, li
     """The daemon's monitor from the ``events`` and ``alarms`` config sections; alarm sinks
     are started here and closed by ``stack`` (after the monitor has ended an open event,
     when the monitor's own close is registered after this call)."""
-    import dataclasses
-
     ev = cfg.events
     events = EventConfig(**{f.name: getattr(ev, f.name) for f in dataclasses.fields(EventConfig)})
     sinks = []
     mq = cfg.alarms.mqtt
     if mq.enabled:
-        from appliance.alarms.mqtt import MqttConfig, MqttSink
 
         sink = MqttSink(MqttConfig(**{f.name: getattr(mq, f.name)
                                       for f in dataclasses.fields(MqttConfig)})).start()

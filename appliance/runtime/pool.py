@@ -21,8 +21,10 @@ import numpy as np
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
+from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import create_shift_table
-from appliance.runtime.workers import WorkerResult, worker_main
+from appliance.runtime.worker_result import WorkerResult
+from appliance.runtime.workers import worker_main
 from processing.chain.driver import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
@@ -45,7 +47,7 @@ class WorkerPool:
     params : ChainParameters
         Parameters of the scene-flow chain, the same for every worker.
     emission : Any
-        Emission set-up for the workers (``workers.emission_setup``), or None.
+        Emission set-up for the workers (``emission_setup.emission_setup``), or None.
     handle : callable
         Called in the results thread with every :class:`WorkerResult`; an exception it raises
         is logged and the next result taken.
@@ -81,8 +83,6 @@ class WorkerPool:
         ``spawn(target, name, *args)`` starts a guarded daemon thread (the daemon's, so that
         an exception escaping the results loop ends the run with exit code 1).
         """
-        from appliance.runtime.ring import PairRing
-
         w, h = self.image_size
         self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)

@@ -1,7 +1,7 @@
 """Publishing scene-flow results: shared by ``ogiflow run`` and ``ogiflow replay``.
 
-:class:`ResultPublisher` turns a :class:`~appliance.runtime.workers.WorkerResult` into what the
-user gets: the per-frame summary (with validity and flags) and, every N-th result, the
+:class:`ResultPublisher` turns a :class:`~appliance.runtime.worker_result.WorkerResult` into
+what the user gets: the per-frame summary (with validity and flags) and, every N-th result, the
 full fields in the MCAP file, the wind in the camera frame at the pair's time, and the
 live-view item. Run and replay share it, so a replayed recording is published exactly as
 it was live.
@@ -13,10 +13,12 @@ import threading
 from collections.abc import Callable
 from typing import Any
 
+import cv2
 import numpy as np
 
+from appliance.live.view import LiveFrame
 from appliance.recording import schemas
-from appliance.runtime.workers import WorkerResult
+from appliance.runtime.worker_result import WorkerResult
 from processing.chain.summary import directional_angles
 from processing.emission.rate import RateEstimate, RateWindow
 
@@ -222,8 +224,6 @@ class ResultPublisher:
 
     def _push_live(self, res: WorkerResult, summary: dict[str, Any], wind: np.ndarray | None,
                    truth: np.ndarray | None, t1: int) -> None:
-        from appliance.live.view import LiveFrame
-
         ok = summary["valid"]
         self.live.push(LiveFrame(
             frame=res.pair_indices[1], t_capture_ns=self.wall_ns(t1),
@@ -243,8 +243,6 @@ class ResultPublisher:
         ))
 
     def _record_fields(self, res: WorkerResult, t1: int) -> None:
-        import cv2
-
         wall = self.wall_ns(t1)
         # a single-camera result has its camera's I_diff (as diff_left) and no stereo fields
         own = res.single_camera or "left"

@@ -22,7 +22,7 @@ import logging
 import os
 import subprocess
 import sys
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,9 +30,16 @@ import numpy as np
 
 from appliance.config import CameraConfig, Config, SimulationConfig
 from appliance.progress import ProgressBar
-from processing.synthetic import read_frame, read_sequence_meta
+from drivers.camera.replay_folder import folder_frame_rate_hz
+from processing.synthetic import read_frame, read_sequence_meta, write_sequence
+from processing.synthetic.presets import (
+    FIELD_FRAME_RATE_HZ,
+    preset_field,
+    preset_no_release,
+)
 from processing.synthetic.reference import triplet_reference
 from processing.synthetic.schedule import ReleaseSchedule
+from processing.synthetic.sequences import generate_sequence
 
 log = logging.getLogger("ogiflow.simsite")
 
@@ -85,8 +92,6 @@ def preview_of(sim: SimulationConfig) -> SimulationConfig | None:
     (about 20x less rendering than the default), or None when there is none to gain or it
     would not be the same experiment (a release schedule needs its whole loop; the
     no-release scene has no fluid to simulate and renders about 5x faster anyway)."""
-    from dataclasses import replace
-
     if sim.scene != "leak" or sim.release_schedule:
         return None
     if sim.voxel_m >= PREVIEW_VOXEL_M and sim.frames <= PREVIEW_FRAMES:
@@ -120,9 +125,6 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     quiet : bool
         Do not draw the progress bar on stderr.
     """
-    from processing.synthetic import write_sequence
-    from processing.synthetic.sequences import generate_sequence
-
     root = cache_root(sim.cache_dir)
     folder = scene_folder(sim, wind_camera_m_s)
     if (folder / "meta.json").is_file():
@@ -145,14 +147,6 @@ def scene_config(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     the background drift both lasting one loop, so the looped scene has no jump (the drift's
     steepest slope stays that of the preset).
     """
-    from dataclasses import replace
-
-    from processing.synthetic.presets import (
-        FIELD_FRAME_RATE_HZ,
-        preset_field,
-        preset_no_release,
-    )
-    from processing.synthetic.schedule import ReleaseSchedule
 
     common = {"n_frames": sim.frames, "wind_m_s": tuple(float(w) for w in wind_camera_m_s),
               "b_m": sim.baseline_m, "distance_m": sim.distance_m, "seed": sim.seed,
@@ -319,8 +313,6 @@ class SimulatedSite:
         options = dict(cam.options)
         if cam.backend == "replay_folder" and "fps" not in options:
             # a folder that says its own frame rate (labels.json) is served at it
-            from drivers.camera.replay_folder import folder_frame_rate_hz
-
             path = options.get("path")
             if path is None or folder_frame_rate_hz(path) is None:
                 options["fps"] = cam.frame_rate_hz

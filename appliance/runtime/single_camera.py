@@ -12,6 +12,7 @@ single-camera sites: one path for both.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -204,8 +205,6 @@ def probe_image_size(cfg: Any, site: Any) -> tuple[int, int]:
     RuntimeError
         The camera delivers no frame within 10 s (a runtime fault: exit code 1).
     """
-    import contextlib
-
 
     cam_cfg = cfg.cameras.left
     assert cam_cfg is not None

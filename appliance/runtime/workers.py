@@ -25,211 +25,41 @@ import os
 import queue
 import time
 import traceback
-from dataclasses import dataclass, field
 from typing import Any
 
+import cv2
+import numba
 import numpy as np
 
-from appliance.live import MAX_ARROWS
-from processing.calibration.radiometric import CharacteristicCurve
-from processing.chain.driver import ChainParameters, ChainState, SceneFlowResult, StereoGeometry
-from processing.emission.estimator import (
-    DEFAULT_GAS_TEMPERATURE_K,
-    EmissionEstimator,
-    EmissionSettings,
+from appliance.memory import PeriodicTrim, keep_freed_memory
+from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
+from appliance.runtime.ring import PairRing
+from appliance.runtime.shiftshare import SharedShiftMemo
+from appliance.runtime.single_camera import SingleCameraWorker, window_camera
+from appliance.runtime.worker_result import WorkerResult, pack_result, pack_single
+from processing.chain.driver import (
+    ChainParameters,
+    ChainState,
+    SceneFlowResult,
+    StereoGeometry,
+    compute_scene_flow,
 )
-from processing.emission.rate import FrameRate
-
-
-@dataclass
-class WorkerResult:
-    """One processed window, as sent from a worker to the daemon (picklable).
-
-    Times are host monotonic ns of the three pairs (mean of both cameras' capture times);
-    fields are those of the left view at t0, (H, W) unless stated.
-    """
-
-    worker: int
-    pair_indices: tuple[int, int, int]
-    t_mono_ns: tuple[int, int, int]
-    t_wall_ns: int
-    skipped: int
-    done_mono_ns: int
-    error: str | None = None
-    summary: dict[str, Any] = field(default_factory=dict)
-    timings_ms: dict[str, float] = field(default_factory=dict)
-    dt_s: float | None = None
-    diff_scale: float | None = None
-    rejected_shifts: int = 0
-    diff_left: np.ndarray | None = None  # uint8, 0.5 = no change
-    diff_right: np.ndarray | None = None
-    flow: np.ndarray | None = None  # (H, W, 2) float32 px (with the fields only)
-    gas_flow: np.ndarray | None = None  # (N, 2) float32 px at the gas pixels, row-major
-    disparity: np.ndarray | None = None  # float32 px
-    disparity_change: np.ndarray | None = None
-    velocity: np.ndarray | None = None  # (H, W, 3) float32 m/s
-    valid: np.ndarray | None = None  # bool
-    gas_mask: np.ndarray | None = None  # bool
-    points3d: np.ndarray | None = None  # (N, 3) m, gas pixels only
-    velocity3d: np.ndarray | None = None  # (N, 3) m/s
-    pixels: np.ndarray | None = None  # (N, 2) int32 (x, y) of those gas pixels
-    raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
-    rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
-    warm: bool = False  # the solvers started from the worker's previous triple
-    #: The camera of a single-camera result ("left"/"right"; its diff and raw frame travel
-    #: as ``diff_left``/``raw_left``, the image the zones and the operator see); None: stereo.
-    single_camera: str | None = None
-
-    @property
-    def has_fields(self) -> bool:
-        """Whether the full fields came along (see :func:`pack_result`)."""
-        return self.flow is not None if self.single_camera else self.velocity is not None
-
-
-@dataclass(frozen=True)
-class EmissionSetup:
-    """What a worker needs for the emission rate (picklable).
-
-    ``gas_temperature_k`` None: the anemometer's sonic temperature, shared by the daemon
-    through a ``multiprocessing.Value`` (NaN until the first sample). ``curve_left``: the
-    left camera's characteristic curve when the geometry has none (the simulated site's
-    known counts model); without any, counts are not radiance and there is no rate.
-    """
-
-    settings: EmissionSettings
-    gas_temperature_k: float | None = None
-    curve_left: CharacteristicCurve | None = None
-    every: int = 1  # a rate on every this many triples of a worker (config emission.every)
-
-    def to_json(self) -> str:
-        """The setup as JSON (the recording's ``emission`` metadata, so replay uses it)."""
-        import dataclasses
-        import json
-
-        st = self.settings
-        curve = self.curve_left
-        return json.dumps({
-            "gas": dataclasses.asdict(st.gas), "pressure_pa": st.pressure_pa,
-            "background_frames": st.background_frames,
-            "gas_temperature_k": self.gas_temperature_k,
-            "curve_left": None if curve is None else {"offset": curve.offset,
-                                                      "gain": curve.gain}})
-
-    @classmethod
-    def from_json(cls, text: str) -> EmissionSetup:
-        """Inverse of :meth:`to_json` (ValueError on a malformed record)."""
-        import json
-
-        from processing.emission.gas import GasProperties
-
-        try:
-            d = json.loads(text)
-            curve = d.get("curve_left")
-            return cls(EmissionSettings(gas=GasProperties(**d["gas"]),
-                                        pressure_pa=float(d["pressure_pa"]),
-                                        background_frames=int(d["background_frames"])),
-                       None if d["gas_temperature_k"] is None
-                       else float(d["gas_temperature_k"]),
-                       None if curve is None else CharacteristicCurve(
-                           offset=float(curve["offset"]), gain=float(curve["gain"])))
-        except (KeyError, TypeError, json.JSONDecodeError) as exc:
-            raise ValueError(f"bad emission metadata: {exc}") from None
-
-    def estimator(self, geometry: StereoGeometry) -> EmissionEstimator | None:
-        """The estimator, or None without a radiometric calibration."""
-        curve = geometry.curve_left or self.curve_left
-        if curve is None:
-            return None
-        return EmissionEstimator(self.settings, geometry.principal_point,
-                                 geometry.camera_constant, curve)
-
-    def temperature_k(self, sonic_k: Any = None) -> float:
-        """The gas temperature now: configured, else the sonic one, else 15 degC."""
-        if self.gas_temperature_k is not None:
-            return self.gas_temperature_k
-        t = float("nan") if sonic_k is None else float(sonic_k.value)
-        return t if np.isfinite(t) and 150.0 < t < 400.0 else DEFAULT_GAS_TEMPERATURE_K
-
-
-#: The rate of a frame when the cameras have no radiometric calibration.
-NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
-
-
-def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneFlowResult,
-                  gas_temperature_k: float) -> FrameRate:
-    """The stereo emission rate of one triple from the raw left frame at t1; a failure is a
-    rate with its reason, never a lost result."""
-    try:
-        return estimator.frame_rate(left_t1, flow=res.flow, velocity=res.velocity,
-                                    depth=res.position[..., 2], valid=res.valid,
-                                    gas_mask=res.gas_mask, dt_s=res.dt_s,
-                                    gas_temperature_k=gas_temperature_k)
-    except (ValueError, FloatingPointError) as exc:
-        return FrameRate(None, (), f"emission rate failed: {exc}")
-
-
-def _to_u8(image: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
-
-
-def pack_result(res: SceneFlowResult, base: WorkerResult,
-                raw_left: np.ndarray | None = None, *, fields: bool = True) -> WorkerResult:
-    """Fill ``base`` with what the daemon needs from a chain result (and the raw left frame
-    at t0, which the operator's view shows under the gas overlay).
-
-    Without ``fields`` only what every result needs travels - summary, gas mask and the
-    flow at the gas pixels (the leak events), the gas arrows - about 0.1-0.3 MB instead of
-    2.6 MB at 320x240: the daemon records the full fields of every N-th result and shows
-    pictures a few times a second, and pickling, piping and unpickling the rest cost both
-    processes ~2-3 ms each.
-    """
-    base.summary = res.summary.to_dict()
-    base.timings_ms = dict(res.timings_ms)
-    base.dt_s = res.dt_s
-    base.diff_scale = res.diff_scale
-    base.rejected_shifts = res.rejected_shifts
-    base.warm = bool(res.warm)
-    base.gas_mask = res.gas_mask
-    base.gas_flow = res.flow.reshape(-1, 2)[np.flatnonzero(res.gas_mask)]
-    if fields:
-        base.flow = res.flow
-        base.diff_left = _to_u8(res.diff_left[0])
-        base.diff_right = _to_u8(res.diff_right[0])
-        base.disparity = res.disparity
-        base.disparity_change = res.disparity_change
-        base.velocity = res.velocity
-        base.valid = res.valid
-    sel = np.flatnonzero((res.gas_mask & res.valid).ravel())
-    if sel.size > MAX_ARROWS:
-        sel = sel[:: int(np.ceil(sel.size / MAX_ARROWS))]
-    base.points3d = res.position.reshape(-1, 3)[sel].copy()
-    base.velocity3d = res.velocity.reshape(-1, 3)[sel].copy()
-    w = res.gas_mask.shape[1]
-    base.pixels = np.column_stack([sel % w, sel // w]).astype(np.int32)
-    if raw_left is not None and fields:
-        base.raw_left = np.array(raw_left, copy=True)
-    return base
+from processing.chain.state import STRIDES
 
 
 def share_of_stream(worker_id: int, n_workers: int) -> tuple[int, int]:
     """(stride, phase) of a worker's triples: every other one for two workers, else all."""
-    from processing.chain.state import STRIDES
-
     if n_workers > 1 and n_workers in STRIDES:
         return n_workers, worker_id % n_workers
     return 1, 0
 
 
-def _single_threaded() -> None:
+def single_threaded() -> None:
     """One thread per worker: the daemon runs one worker per core."""
-    import cv2
-
     cv2.setNumThreads(1)
     try:
-        import numba
-
         numba.set_num_threads(1)
-    except (ImportError, ValueError):
+    except ValueError:
         pass
 
 
@@ -274,150 +104,134 @@ def worker_main(
         the live view); the worker that packs the next result sends them and clears it.
         None: every result carries them.
     """
-    from appliance.memory import PeriodicTrim, keep_freed_memory
-    from appliance.runtime.ring import PairRing
-    from appliance.runtime.shiftshare import SharedShiftMemo
-
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     keep_freed_memory()
-    _single_threaded()
+    single_threaded()
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)
-    stride, phase = share_of_stream(worker_id, n_workers)
-    state = (ChainState(stride=stride) if shift_table is None
-             else ChainState(stride=stride, shifts=SharedShiftMemo(shift_table)))
-    # In order (warm) while at most half the ring behind; more than two workers share one
-    # phase and take the newest window.
-    max_lag = ring.capacity // 2 if n_workers <= 2 else None
-    torn = 0
-    undelivered = 0  # results the daemon did not take within a second (counted as skipped)
+    worker = _Worker(worker_id, ring, n_workers, geometry, params, emission, sonic_k,
+                     shift_table, fields_wanted)
     trim = PeriodicTrim()
-    from appliance.runtime.single_camera import SingleCameraWorker, window_camera
-
-    estimator = (None if emission is None or geometry is None
-                 else emission.estimator(geometry))
-    single = SingleCameraWorker(params)
-    own = -1  # triples this worker processed (the emission rate on every n-th)
     try:
         while not stop.is_set():
-            lease = ring.take_newest(3, stride=stride, phase=phase, max_lag=max_lag)
-            if lease is None:
-                time.sleep(0.002)
+            window = worker.take()
+            if window is None:
                 continue
-            meta = lease.meta
-            skipped = lease.skipped
-            images = lease.copy()
-            lease.release()
-            if images is None:
-                torn += 1  # overwritten while copying: the worker is far behind
-                continue
-            left, right = images
-            t_mono = tuple(int((m["t_left_mono_ns"] + m["t_right_mono_ns"]) // 2) for m in meta)
-            base = WorkerResult(
-                worker=worker_id,
-                pair_indices=tuple(int(m["pair_index"]) for m in meta),  # type: ignore[arg-type]
-                t_mono_ns=t_mono,  # type: ignore[arg-type]
-                t_wall_ns=int(meta[1]["t_wall_ns"]),
-                skipped=skipped + torn + undelivered,
-                done_mono_ns=0,
-            )
-            torn = undelivered = 0
-            camera = window_camera(meta)
-            try:
-                full = fields_wanted is None or bool(fields_wanted.value)
-                if full and fields_wanted is not None:
-                    fields_wanted.value = 0  # two workers may both send: harmless
-                own += 1
-                rate_due = emission is not None and own % emission.every == 0
-                if camera is not None:
-                    tr = single(camera, left if camera == "left" else right, t_mono, base)
-                    pack_single(tr, base, camera, fields=full)
-                    if emission is not None:
-                        base.rate = single.rate(
-                            estimator if camera == "left" else None, emission,
-                            (left if camera == "left" else right)[1], tr, base.dt_s,
-                            sonic_k, rate_due)
-                else:
-                    if geometry is None:
-                        raise ValueError("a stereo pair at a site without stereo geometry")
-                    res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
-                    pack_result(res, base, raw_left=left[0], fields=full)
-                    if estimator is not None and emission is not None and rate_due:
-                        base.rate = emission_rate(estimator, left[1], res,
-                                                  emission.temperature_k(sonic_k))
-                    elif emission is not None:
-                        base.rate = NO_RADIOMETRY
-            except ValueError as exc:  # bad frames: reported, the worker goes on
-                base.error = f"{type(exc).__name__}: {exc}"
-            except Exception:
-                base.error = traceback.format_exc(limit=5)
-            base.done_mono_ns = time.monotonic_ns()
-            try:
-                results.put(base, timeout=1.0)
-            except queue.Full:
-                undelivered += 1
+            base, camera, left, right = window
+            worker.process(base, camera, left, right)
+            worker.deliver(results, base)
             trim.tick()
     finally:
         ring.close()
 
 
-def pack_single(tr: Any, base: WorkerResult, camera: str, *, fields: bool = True) -> None:
-    """Fill ``base`` with a single-camera triple (:class:`~appliance.runtime.single_camera.
-    MonoTriple`): gas mask and the flow at its pixels always, the flow, I_diff and the raw
-    frame with the fields; no disparity, no 3D velocity."""
-    n = int(tr.mask.sum())
-    flags = ["single_camera"] + ([] if camera == "left" else ["right_camera"])
-    base.single_camera = camera
-    base.summary = {"gas_pixel_count": n, "valid": False, "mean_velocity": None,
-                    "speed": None, "angles_deg": None, "c_usf": None, "flags": flags}
-    base.timings_ms = {**tr.timings_ms, "total": sum(tr.timings_ms.values())}
-    base.rejected_shifts = tr.rejected_shifts
-    base.gas_mask = tr.mask
-    base.gas_flow = tr.flow.reshape(-1, 2)[np.flatnonzero(tr.mask)]
-    if fields:
-        base.flow = tr.flow
-        base.diff_left = _to_u8(tr.diff)
-        base.raw_left = np.array(tr.raw, copy=True)
+class _Worker:
+    """The state of one worker process between windows (see :func:`worker_main`)."""
+
+    def __init__(self, worker_id: int, ring: PairRing, n_workers: int,
+                 geometry: StereoGeometry | None, params: ChainParameters,
+                 emission: EmissionSetup | None, sonic_k: Any, shift_table: Any,
+                 fields_wanted: Any) -> None:
+        self.worker_id, self.ring = worker_id, ring
+        self.geometry, self.params = geometry, params
+        self.emission, self.sonic_k, self.fields_wanted = emission, sonic_k, fields_wanted
+        self.stride, self.phase = share_of_stream(worker_id, n_workers)
+        self.state = (ChainState(stride=self.stride) if shift_table is None
+                      else ChainState(stride=self.stride, shifts=SharedShiftMemo(shift_table)))
+        # In order (warm) while at most half the ring behind; more than two workers share
+        # one phase and take the newest window.
+        self.max_lag = ring.capacity // 2 if n_workers <= 2 else None
+        self.torn = 0
+        self.undelivered = 0  # results the daemon did not take within a second (skipped)
+        self.estimator = (None if emission is None or geometry is None
+                          else emission.estimator(geometry))
+        self.single = SingleCameraWorker(params)
+        self.own = -1  # triples this worker processed (the emission rate on every n-th)
+
+    def take(self) -> tuple[WorkerResult, str | None, np.ndarray, np.ndarray] | None:
+        """The next window copied out of the ring: its result to fill, its single camera
+        (None: stereo) and the (3, H, W) left and right frames (None: no window yet, or it
+        was overwritten while copying)."""
+        lease = self.ring.take_newest(3, stride=self.stride, phase=self.phase,
+                                      max_lag=self.max_lag)
+        if lease is None:
+            time.sleep(0.002)
+            return None
+        meta = lease.meta
+        skipped = lease.skipped
+        images = lease.copy()
+        lease.release()
+        if images is None:
+            self.torn += 1  # overwritten while copying: the worker is far behind
+            return None
+        left, right = images
+        t_mono = tuple(int((m["t_left_mono_ns"] + m["t_right_mono_ns"]) // 2) for m in meta)
+        base = WorkerResult(
+            worker=self.worker_id,
+            pair_indices=tuple(int(m["pair_index"]) for m in meta),  # type: ignore[arg-type]
+            t_mono_ns=t_mono,  # type: ignore[arg-type]
+            t_wall_ns=int(meta[1]["t_wall_ns"]),
+            skipped=skipped + self.torn + self.undelivered,
+            done_mono_ns=0,
+        )
+        self.torn = self.undelivered = 0
+        return base, window_camera(meta), left, right
+
+    def process(self, base: WorkerResult, camera: str | None, left: np.ndarray,
+                right: np.ndarray) -> None:
+        """Run the chain of the window's cameras into ``base``; bad frames become its
+        ``error``, never an ended worker."""
+        try:
+            full = self.fields_wanted is None or bool(self.fields_wanted.value)
+            if full and self.fields_wanted is not None:
+                self.fields_wanted.value = 0  # two workers may both send: harmless
+            self.own += 1
+            rate_due = self.emission is not None and self.own % self.emission.every == 0
+            if camera is not None:
+                self._single(camera, left if camera == "left" else right, base, full,
+                             rate_due)
+            else:
+                self._stereo(left, right, base, full, rate_due)
+        except ValueError as exc:  # bad frames: reported, the worker goes on
+            base.error = f"{type(exc).__name__}: {exc}"
+        except Exception:
+            base.error = traceback.format_exc(limit=5)
+        base.done_mono_ns = time.monotonic_ns()
+
+    def _single(self, camera: str, frames: np.ndarray, base: WorkerResult, full: bool,
+                rate_due: bool) -> None:
+        tr = self.single(camera, frames, base.t_mono_ns, base)
+        pack_single(tr, base, camera, fields=full)
+        if self.emission is not None:
+            base.rate = self.single.rate(
+                self.estimator if camera == "left" else None, self.emission, frames[1], tr,
+                base.dt_s, self.sonic_k, rate_due)
+
+    def _stereo(self, left: np.ndarray, right: np.ndarray, base: WorkerResult, full: bool,
+                rate_due: bool) -> None:
+        if self.geometry is None:
+            raise ValueError("a stereo pair at a site without stereo geometry")
+        res = compute_scene_flow_on(left, right, base.t_mono_ns, self.geometry, self.params,
+                                    self.state)
+        pack_result(res, base, raw_left=left[0], fields=full)
+        if self.estimator is not None and self.emission is not None and rate_due:
+            base.rate = emission_rate(self.estimator, left[1], res,
+                                      self.emission.temperature_k(self.sonic_k))
+        elif self.emission is not None:
+            base.rate = NO_RADIOMETRY
+
+    def deliver(self, results: Any, base: WorkerResult) -> None:
+        """Send ``base`` to the daemon; one it does not take within a second is counted
+        with the next result's skipped windows."""
+        try:
+            results.put(base, timeout=1.0)
+        except queue.Full:
+            self.undelivered += 1
 
 
 def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[int, ...],
                           geometry: StereoGeometry, params: ChainParameters,
                           state: ChainState) -> SceneFlowResult:
     """Run the chain on (3, H, W) left/right stacks with host monotonic ns times."""
-    from processing.chain.driver import compute_scene_flow
-
     times = tuple(t / 1e9 for t in t_mono_ns)
     return compute_scene_flow(list(left), list(right), times, geometry, params, state)
-
-
-def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
-    """The workers' emission settings from the ``emission`` section (None: disabled);
-    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
-    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
-    gas absorption as the gas-cell calibration, and its gas temperature."""
-    from dataclasses import replace
-
-    from processing.calibration.radiometric import CharacteristicCurve
-    from processing.emission.estimator import EmissionSettings
-    from processing.emission.gas import METHANE, load_gas
-
-    em = cfg.emission
-    if not em.enabled:
-        return None
-    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
-    curve, t_gas = None, em.gas_temperature_k
-    if truth is not None:
-        counts = truth.meta["counts_model"]["left"]
-        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
-        rad = truth.meta["radiometry"]
-        if em.gas_file is None:
-            gas = replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
-                          source="the simulated scene's")
-        if t_gas is None:
-            # The simulated anemometer's sonic temperature is not the scene's gas
-            # temperature (the renderer's plume is colder than the air around it).
-            t_gas = float(rad["t_gas_k"])
-    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
-                                          background_frames=em.background_frames,
-                                          typed_distance_m=em.single_camera_distance_m),
-                         t_gas, curve, every=em.every)

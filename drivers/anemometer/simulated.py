@@ -169,9 +169,6 @@ class SimulatedSensor:
         with self._lock:
             self._paused.set()
 
-    def resume(self) -> None:
-        self._paused.clear()
-
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None:

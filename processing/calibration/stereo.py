@@ -211,27 +211,10 @@ def calibrate_stereo_points(
     if len(names) < min_views:
         raise TooFewViewsError(_too_few_message(len(names), min_views, not_found))
     obj_one = object_points(spec)
-    live = list(range(len(names)))
-    dropped: dict[int, tuple[float, float, str]] = {}
-    while True:
-        obj = [obj_one] * len(live)
-        lp = [np.asarray(left_points[i], np.float32).reshape(-1, 1, 2) for i in live]
-        rp = [np.asarray(right_points[i], np.float32).reshape(-1, 1, 2) for i in live]
-        fit = _fit(obj, lp, rp, image_size, fix_k3, joint=False)
-        view_rms = np.sqrt(0.5 * (fit.per_view**2).sum(axis=1))
-        limit = outlier_threshold(view_rms, outlier_k, outlier_floor_px)
-        worst = int(np.argmax(view_rms))
-        if view_rms[worst] <= limit:
-            break
-        if len(live) - 1 < min_views:
-            bad = [names[live[j]] for j in np.flatnonzero(view_rms > limit)]
-            raise TooFewViewsError(
-                f"views {', '.join(bad)} reproject with RMS above {limit:.2f} px but dropping "
-                f"them leaves fewer than {min_views} views; take more views"
-                + (f" (target not found in: {', '.join(not_found)})" if not_found else ""))
-        dropped[live[worst]] = (float(fit.per_view[worst, 0]), float(fit.per_view[worst, 1]),
-                                f"RMS {view_rms[worst]:.2f} px > limit {limit:.2f} px")
-        del live[worst]
+    live, dropped, obj, lp, rp, fit = _drop_outlier_views(
+        obj_one, names, left_points, right_points, image_size, fix_k3=fix_k3,
+        outlier_k=outlier_k, outlier_floor_px=outlier_floor_px, min_views=min_views,
+        not_found=not_found)
     if joint_refine:
         # Measured on 8 rendered chessboard sets (14 views, 320x240): worst focal-length
         # error 0.28-1.04 % with the per-camera intrinsics kept, 0.02-0.39 % after the joint
@@ -243,15 +226,6 @@ def calibrate_stereo_points(
             f"{', '.join(names[i] for i in live)} exceeds {max_rms_px:.2f} px: check the "
             "pattern spacing, focus and that the target did not move between the left and "
             "right frames")
-    reports = []
-    for i, name in enumerate(names):
-        if i in dropped:
-            rl, rr, why = dropped[i]
-            reports.append(ViewReport(name, rl, rr, kept=False, reason=why))
-        else:
-            j = live.index(i)
-            reports.append(ViewReport(name, float(fit.per_view[j, 0]),
-                                      float(fit.per_view[j, 1]), kept=True))
     meta = {
         "pattern": {"kind": spec.kind, "rows": spec.rows, "cols": spec.cols,
                     "spacing_m": spec.spacing_m},
@@ -265,7 +239,57 @@ def calibrate_stereo_points(
     }
     calib = stereo_rectification(fit.K1, fit.D1, fit.K2, fit.D2, fit.R, fit.T, image_size,
                                  alpha=alpha, rms_px=fit.rms, meta=meta)
-    return StereoCalibrationResult(calib, reports, list(not_found), fit.rms_left, fit.rms_right)
+    return StereoCalibrationResult(calib, _view_reports(names, live, dropped, fit),
+                                   list(not_found), fit.rms_left, fit.rms_right)
+
+
+def _drop_outlier_views(
+    obj_one: np.ndarray, names: Sequence[str], left_points: Sequence[np.ndarray],
+    right_points: Sequence[np.ndarray], image_size: tuple[int, int], *, fix_k3: bool,
+    outlier_k: float, outlier_floor_px: float, min_views: int, not_found: Sequence[str],
+) -> tuple[list[int], dict[int, tuple[float, float, str]], list[np.ndarray],
+           list[np.ndarray], list[np.ndarray], _Fit]:
+    """Fit per camera and drop the worst view while it is an outlier (step 4).
+
+    Returns the kept view indices, the dropped ones (left RMS, right RMS, reason), the
+    object, left and right points of the kept views as OpenCV wants them, and their fit.
+    """
+    live = list(range(len(names)))
+    dropped: dict[int, tuple[float, float, str]] = {}
+    while True:
+        obj = [obj_one] * len(live)
+        lp = [np.asarray(left_points[i], np.float32).reshape(-1, 1, 2) for i in live]
+        rp = [np.asarray(right_points[i], np.float32).reshape(-1, 1, 2) for i in live]
+        fit = _fit(obj, lp, rp, image_size, fix_k3, joint=False)
+        view_rms = np.sqrt(0.5 * (fit.per_view**2).sum(axis=1))
+        limit = outlier_threshold(view_rms, outlier_k, outlier_floor_px)
+        worst = int(np.argmax(view_rms))
+        if view_rms[worst] <= limit:
+            return live, dropped, obj, lp, rp, fit
+        if len(live) - 1 < min_views:
+            bad = [names[live[j]] for j in np.flatnonzero(view_rms > limit)]
+            raise TooFewViewsError(
+                f"views {', '.join(bad)} reproject with RMS above {limit:.2f} px but dropping "
+                f"them leaves fewer than {min_views} views; take more views"
+                + (f" (target not found in: {', '.join(not_found)})" if not_found else ""))
+        dropped[live[worst]] = (float(fit.per_view[worst, 0]), float(fit.per_view[worst, 1]),
+                                f"RMS {view_rms[worst]:.2f} px > limit {limit:.2f} px")
+        del live[worst]
+
+
+def _view_reports(names: Sequence[str], live: list[int],
+                  dropped: dict[int, tuple[float, float, str]], fit: _Fit) -> list[ViewReport]:
+    """One report per view, kept (with the final fit's RMS) or dropped (with why)."""
+    reports = []
+    for i, name in enumerate(names):
+        if i in dropped:
+            rl, rr, why = dropped[i]
+            reports.append(ViewReport(name, rl, rr, kept=False, reason=why))
+        else:
+            j = live.index(i)
+            reports.append(ViewReport(name, float(fit.per_view[j, 0]),
+                                      float(fit.per_view[j, 1]), kept=True))
+    return reports
 
 
 def _too_few_message(n: int, min_views: int, not_found: Sequence[str]) -> str:

@@ -1,0 +1,127 @@
+"""The emission rate of the workers: its settings from the configuration, and one triple's rate.
+
+:class:`EmissionSetup` is what a worker process needs to compute the rate (picklable, and
+recorded as JSON so that replay uses the same); :func:`emission_setup` builds it from the
+``emission`` section; :func:`emission_rate` is the stereo rate of one chain result.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from processing.calibration.radiometric import CharacteristicCurve
+from processing.chain.driver import SceneFlowResult, StereoGeometry
+from processing.emission.estimator import (
+    DEFAULT_GAS_TEMPERATURE_K,
+    EmissionEstimator,
+    EmissionSettings,
+)
+from processing.emission.gas import METHANE, GasProperties, load_gas
+from processing.emission.rate import FrameRate
+
+
+@dataclass(frozen=True)
+class EmissionSetup:
+    """What a worker needs for the emission rate (picklable).
+
+    ``gas_temperature_k`` None: the anemometer's sonic temperature, shared by the daemon
+    through a ``multiprocessing.Value`` (NaN until the first sample). ``curve_left``: the
+    left camera's characteristic curve when the geometry has none (the simulated site's
+    known counts model); without any, counts are not radiance and there is no rate.
+    """
+
+    settings: EmissionSettings
+    gas_temperature_k: float | None = None
+    curve_left: CharacteristicCurve | None = None
+    every: int = 1  # a rate on every this many triples of a worker (config emission.every)
+
+    def to_json(self) -> str:
+        """The setup as JSON (the recording's ``emission`` metadata, so replay uses it)."""
+        st = self.settings
+        curve = self.curve_left
+        return json.dumps({
+            "gas": dataclasses.asdict(st.gas), "pressure_pa": st.pressure_pa,
+            "background_frames": st.background_frames,
+            "gas_temperature_k": self.gas_temperature_k,
+            "curve_left": None if curve is None else {"offset": curve.offset,
+                                                      "gain": curve.gain}})
+
+    @classmethod
+    def from_json(cls, text: str) -> EmissionSetup:
+        """Inverse of :meth:`to_json` (ValueError on a malformed record)."""
+        try:
+            d = json.loads(text)
+            curve = d.get("curve_left")
+            return cls(EmissionSettings(gas=GasProperties(**d["gas"]),
+                                        pressure_pa=float(d["pressure_pa"]),
+                                        background_frames=int(d["background_frames"])),
+                       None if d["gas_temperature_k"] is None
+                       else float(d["gas_temperature_k"]),
+                       None if curve is None else CharacteristicCurve(
+                           offset=float(curve["offset"]), gain=float(curve["gain"])))
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"bad emission metadata: {exc}") from None
+
+    def estimator(self, geometry: StereoGeometry) -> EmissionEstimator | None:
+        """The estimator, or None without a radiometric calibration."""
+        curve = geometry.curve_left or self.curve_left
+        if curve is None:
+            return None
+        return EmissionEstimator(self.settings, geometry.principal_point,
+                                 geometry.camera_constant, curve)
+
+    def temperature_k(self, sonic_k: Any = None) -> float:
+        """The gas temperature now: configured, else the sonic one, else 15 degC."""
+        if self.gas_temperature_k is not None:
+            return self.gas_temperature_k
+        t = float("nan") if sonic_k is None else float(sonic_k.value)
+        return t if np.isfinite(t) and 150.0 < t < 400.0 else DEFAULT_GAS_TEMPERATURE_K
+
+
+#: The rate of a frame when the cameras have no radiometric calibration.
+NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not radiance)")
+
+
+def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneFlowResult,
+                  gas_temperature_k: float) -> FrameRate:
+    """The stereo emission rate of one triple from the raw left frame at t1; a failure is a
+    rate with its reason, never a lost result."""
+    try:
+        return estimator.frame_rate(left_t1, flow=res.flow, velocity=res.velocity,
+                                    depth=res.position[..., 2], valid=res.valid,
+                                    gas_mask=res.gas_mask, dt_s=res.dt_s,
+                                    gas_temperature_k=gas_temperature_k)
+    except (ValueError, FloatingPointError) as exc:
+        return FrameRate(None, (), f"emission rate failed: {exc}")
+
+
+def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
+    """The workers' emission settings from the ``emission`` section (None: disabled);
+    ValueError for a bad gas file (a configuration error). A simulated scene (``truth``, a
+    :class:`SceneTruth`) lends its camera's counts model as the characteristic curve, its
+    gas absorption as the gas-cell calibration, and its gas temperature."""
+    em = cfg.emission
+    if not em.enabled:
+        return None
+    gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
+    curve, t_gas = None, em.gas_temperature_k
+    if truth is not None:
+        counts = truth.meta["counts_model"]["left"]
+        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
+        rad = truth.meta["radiometry"]
+        if em.gas_file is None:
+            gas = dataclasses.replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
+                                      source="the simulated scene's")
+        if t_gas is None:
+            # The simulated anemometer's sonic temperature is not the scene's gas
+            # temperature (the renderer's plume is colder than the air around it).
+            t_gas = float(rad["t_gas_k"])
+    return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
+                                          background_frames=em.background_frames,
+                                          typed_distance_m=em.single_camera_distance_m),
+                         t_gas, curve, every=em.every)
