@@ -48,7 +48,7 @@ from appliance.runtime.page_service import start_page, stop_page
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.workers import WorkerResult, emission_setup
-from processing.chain import ChainParameters, StereoGeometry
+from processing.chain import StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -246,7 +246,7 @@ class Appliance:
         defaults = ({} if self.geometry is None else
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
-        self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
+        self.params = cfg.processing.chain_parameters(defaults)
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
 
