@@ -40,7 +40,8 @@ _HOLDOUT_KEYS = ("scenes", "conditions")
 _RANGES: dict[str, tuple[float, float]] = {
     "release_rate_g_s": (0.01, 100.0), "distance_m": (1.0, 100.0), "depth_m": (1.44, 12.0),
     "noise_netd_k": (0.0, 1.0), "jitter_px": (0.0, 5.0), "gain_mismatch": (0.0, 1.0),
-    "lens_k1": (-1.0, 1.0), "t_gas_k": (100.0, 1000.0), "n_frames": (3, 1000),
+    "lens_k1": (-1.0, 1.0), "object_z_m": (1.0, 100.0), "t_gas_k": (100.0, 1000.0),
+    "n_frames": (3, 1000),
     "voxel_m": (0.005, 0.2),
 }
 

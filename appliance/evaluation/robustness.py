@@ -71,7 +71,8 @@ class Condition:
     rectifies the frames; ``lens_k1`` gives both lenses radial distortion (the scene's gas
     is then rendered through them, its own simulation). ``t_gas_k`` overrides the gas temperature
     (285 K against 300 K by default: a small difference is the low-contrast case);
-    ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation).
+    ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation);
+    ``object_z_m`` the moving object's distance (m; None: :data:`WARM_OBJECT`'s 8 m).
     """
 
     name: str
@@ -84,6 +85,7 @@ class Condition:
     t_gas_k: float | None = None
     release_rate_g_s: float | None = None
     lens_k1: float = 0.0
+    object_z_m: float | None = None
     realistic: bool = True
 
 
@@ -196,12 +198,18 @@ def condition_config(base: SequenceConfig, cond: Condition) -> SequenceConfig:
     """``base`` with the camera effects of ``cond``."""
     opts = RenderOptions(noise_netd_k=cond.noise_netd_k, jitter_px=cond.jitter_px,
                          gain_mismatch=cond.gain_mismatch,
-                         moving_object=WARM_OBJECT if cond.moving_object else None)
+                         moving_object=_moving_object(cond))
     rad = base.radiometry
     if cond.t_gas_k is not None:
         rad = replace(rad, t_gas_k=cond.t_gas_k)
     return replace(base, options=opts, radiometry=rad,
                    background=Background(kind=cond.background, seed=base.seed))
+
+
+def _moving_object(cond: Condition) -> MovingObject | None:
+    if not cond.moving_object:
+        return None
+    return WARM_OBJECT if cond.object_z_m is None else replace(WARM_OBJECT, z_m=cond.object_z_m)
 
 
 def condition_geometry(config: SequenceConfig, cond: Condition) -> StereoGeometry:
