@@ -110,3 +110,15 @@ def test_matrix_file_runs_with_a_configuration_files_parameters(
     assert json.loads(out.read_text())["jitter"]["flags"].get("jitter_corrected", 0) == 0
     assert cli.main(args) == cli.EXIT_OK  # the default chain registers
     assert json.loads(out.read_text())["jitter"]["flags"].get("jitter_corrected", 0) >= 1
+
+
+def test_a_condition_places_the_moving_object(tmp_path: Path) -> None:
+    from appliance.evaluation import robustness as rb
+
+    doc = json.loads(json.dumps(DOC))
+    doc["conditions"] = [{"name": "far object", "moving_object": True, "object_z_m": 11.0},
+                         {"name": "object", "moving_object": True}]
+    m = load_matrix(_write(tmp_path, doc))
+    base = rb.scene_config(m.scenes[0], m)
+    far, near = (rb.condition_config(base, c).options.moving_object for c in m.conditions)
+    assert far.z_m == 11.0 and near.z_m == rb.WARM_OBJECT.z_m == 8.0
