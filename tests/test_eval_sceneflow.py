@@ -145,3 +145,92 @@ def test_frame_metrics_of_a_perfect_field_and_aggregate_flags() -> None:
     assert agg["rmve"] == pytest.approx(0.0, abs=1e-6) and agg["rmve_std"] == 0.0
     assert agg["undefined"]["rmve"] == 1 and agg["undefined"]["r_sf_X"] == 1
     assert agg["sa"] == pytest.approx(50.0)
+
+
+# ------------------------------------------------- geometry and chain from each sequence
+
+
+def test_values_come_from_meta_and_flags_override(tiny_data: Path) -> None:
+    from appliance.evaluation.sceneflow_setup import Overrides, sequence_setup
+    from processing.synthetic import read_sequence_meta
+
+    seq = tiny_data / "tiny"
+    meta = read_sequence_meta(seq)
+    setup = sequence_setup(meta, seq)
+    # the Table-2 volume lies 1.8-2.2 m away: d0 = floor(312 * 0.2 / 2.2) = 28 px
+    assert setup.params.d0 == 28 and setup.params.sgm_num_disparities == 64
+    assert not setup.params.register  # the paper's conditions
+    assert setup.sources["d0"] == "from the gas depth band"
+    assert setup.sources["focal length s"] == "meta.json"
+    assert setup.geometry.camera_constant == 312.0
+    assert setup.frame_interval_s == pytest.approx(meta["frame_interval_s"])
+    ov = Overrides(focal_length_px=300.0, depth_band_m=(1.0, 1.2), frame_interval_s=0.002,
+                   sgm_range=32)
+    setup = sequence_setup(meta, seq, overrides=ov)
+    assert setup.geometry.camera_constant == 300.0
+    assert setup.params.d0 == math.floor(300 * 0.2 / 1.2)
+    assert setup.params.sgm_num_disparities == 32
+    assert setup.frame_interval_s == 0.002
+    assert setup.sources["gas depth band"] == setup.sources["SGM range"] == "command line"
+
+
+def test_appliance_chain_runs_the_configuration_files_parameters(tiny_data: Path,
+                                                                  tmp_path: Path) -> None:
+    from appliance.evaluation.sceneflow_setup import Overrides, sequence_setup
+    from processing.synthetic import read_sequence_meta
+
+    seq = tiny_data / "tiny"
+    meta = read_sequence_meta(seq)
+    builtin = sequence_setup(meta, seq, chain="appliance")
+    assert builtin.params.register and builtin.params.depth_gate
+    assert builtin.params.d0 == 28  # the band, as the daemon's simulated site sets it
+    site = tmp_path / "site.yaml"
+    site.write_text("processing:\n  parameters: {d0: 25, disparity_options: {n_warps: 3}}\n"
+                    "cameras: {left: {backend: aravis}}\ncalibration: /nonexistent.yaml\n")
+    setup = sequence_setup(meta, seq, chain="appliance", config=site)
+    assert setup.params.d0 == 25 and dict(setup.params.disparity_options) == {"n_warps": 3}
+    assert setup.sources["d0"] == f"configuration {site}"
+    flagged = sequence_setup(meta, seq, chain="appliance", config=site,
+                             overrides=Overrides(d0=30.0))
+    assert flagged.params.d0 == 30 and flagged.sources["d0"] == "command line"
+    with pytest.raises(ValueError, match="--chain appliance only"):
+        sequence_setup(meta, seq, chain="paper", config=site)
+    site.write_text("processing:\n  parameters: {alhpa: 0.1}\n")
+    with pytest.raises(ValueError, match="alpha"):
+        sequence_setup(meta, seq, chain="appliance", config=site)
+
+
+def test_no_flag_gives_the_figures_of_the_equivalent_hand_set_flags(
+        tiny_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    auto, hand = tmp_path / "auto.json", tmp_path / "hand.json"
+    assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--frames", "1",
+                     "--json", str(auto)]) == cli.EXIT_OK
+    text = capsys.readouterr().out
+    assert "d0 = 28 px (from the gas depth band)" in text
+    assert "baseline b = 0.2 m (meta.json)" in text
+    assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--frames", "1",
+                     "--d0", "28", "--sgm-range", "64", "--json", str(hand)]) == cli.EXIT_OK
+    a = json.loads(auto.read_text())["tiny"]["proposed"]
+    h = json.loads(hand.read_text())["tiny"]["proposed"]
+    assert a["rmve"] == pytest.approx(h["rmve"]) and a["aemv"] == pytest.approx(h["aemv"])
+    # the old fixed Table-3 start (d0 = 60 px) misses this gas (d = 28-35 px) entirely
+    far = tmp_path / "far.json"
+    assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--frames", "1",
+                     "--d0", "60", "--json", str(far)]) == cli.EXIT_OK
+    assert json.loads(far.read_text())["tiny"]["setup"]["d0"]["source"] == "command line"
+
+
+def test_appliance_chain_end_to_end_and_bad_config_exit_2(tiny_data: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    out = tmp_path / "a.json"
+    assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--frames", "1",
+                     "--chain", "appliance", "--json", str(out)]) == cli.EXIT_OK
+    setup = json.loads(out.read_text())["tiny"]["setup"]
+    assert setup["registration"]["value"] == "on"
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("processing:\n  parameters: {registr: false}\n")
+    capsys.readouterr()
+    assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--chain", "appliance",
+                     "--config", str(bad)]) == cli.EXIT_USAGE
+    assert "registr" in capsys.readouterr().err

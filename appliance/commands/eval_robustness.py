@@ -9,6 +9,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 from appliance import cli
 
@@ -35,7 +36,16 @@ def register(root: argparse._SubParsersAction) -> None:
                    help="named matrix: default (24 conditions x 4 scenes x 14 frames, "
                         "about 10-20 min on 2 cores), quick (3 conditions, 1 scene) or "
                         "holdout (the 11 realistic conditions on 8 scenes of 4 other "
-                        "seeds)")
+                        "seeds); or a matrix file (.yaml/.yml/.json: scenes x conditions, "
+                        "an optional holdout section; see benchmarks/matrices/wide.yaml)")
+    p.add_argument("--part", choices=("dev", "holdout"), default="dev",
+                   help="with a matrix file: its development scenes (default) or its "
+                        "hold-out section")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="run the chain exactly as `ogiflow run --config FILE` does: the "
+                        "file's processing.parameters over the scene's gas depth band "
+                        "(d0, SGM range). Without it: the band and the field solver options "
+                        "(disparity_options n_warps 3, n_inner 4, n_inner_finest 6, n_sor 15)")
     p.add_argument("--condition", action="append", metavar="NAME",
                    help="evaluate only this condition of the matrix (repeatable)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
@@ -50,20 +60,39 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate the matrix; print the table and the acceptance check, write JSON."""
     # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import robustness as rb
+    from appliance.evaluation.matrix_file import is_matrix_file, load_matrix
+    from appliance.evaluation.sceneflow_setup import load_processing
     from appliance.runtime.simsite import cache_root
 
-    if args.matrix not in rb.MATRICES:
+    if is_matrix_file(args.matrix):
+        matrix = load_matrix(Path(args.matrix), args.part)
+    elif args.matrix not in rb.MATRICES:
         raise ValueError(f"unknown --matrix {args.matrix!r}; choose from "
-                         f"{', '.join(rb.MATRICES)}")
-    matrix = rb.MATRICES[args.matrix]
+                         f"{', '.join(rb.MATRICES)} or give a .yaml/.json matrix file")
+    elif args.part != "dev":
+        raise ValueError("--part applies to a matrix file; the named matrices are "
+                         "default, quick and holdout")
+    else:
+        matrix = rb.MATRICES[args.matrix]
+    hook = None
+    if args.config is not None:
+        processing = load_processing(args.config)
+
+        def hook(params: Any) -> Any:
+            # the daemon's parameters: the scene's band under the file's parameters
+            return processing.chain_parameters({"d0": params.d0, "sgm_num_disparities":
+                                                params.sgm_num_disparities})
     cache = None if args.no_cache else (args.cache_dir or cache_root(None) / "robustness")
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    results = rb.run_matrix(matrix, cache, conditions=args.condition, log=log)
+    results = rb.run_matrix(matrix, cache, conditions=args.condition, params_hook=hook,
+                           log=log)
+    chain = (f"chain as `ogiflow run --config {args.config}`" if args.config is not None
+             else "chain: the gas depth band and the field solver options")
     print(f"Scene-flow robustness, matrix {matrix.name!r}: {len(matrix.scenes)} scene(s) x "
-          f"{matrix.n_frames} frames; pooled over every triple")
+          f"{matrix.n_frames} frames; pooled over every triple; {chain}")
     print(rb.format_table(results))
     misses = rb.acceptance(results)
     if misses:

@@ -11,7 +11,7 @@ Validation lives in :mod:`appliance.config.validate`, loading and command-line o
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -130,6 +130,16 @@ class ProcessingConfig:
     parameters: dict[str, Any] = _opt(
         "parameters passed to the processing chain as they are (checked by it)", factory=dict,
     )
+
+    def chain_parameters(self, defaults: Mapping[str, Any] | None = None) -> Any:
+        """The scene-flow chain's parameters (:class:`processing.chain.ChainParameters`):
+        ``defaults`` (what the scene implies, e.g. a simulated site's or a sequence's gas
+        depth band) with this section's ``parameters`` over them. The one place the daemon
+        and the evaluations build them, so an evaluation runs what ``ogiflow run`` runs.
+        An unknown or invalid key raises ValueError naming it."""
+        from processing.chain import ChainParameters
+
+        return ChainParameters.from_mapping({**(defaults or {}), **self.parameters})
 
 
 @dataclass(frozen=True)

@@ -24,17 +24,14 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import cv2
-import numpy as np
-
 from appliance.evaluation.gas_cache import gas_frames
 from appliance.evaluation.sceneflow import Log, Metrics, aggregate, evaluate_frames
+from appliance.evaluation.sceneflow_setup import band_disparities, rectified_truth
 from processing.chain import ChainParameters, StereoGeometry
 from processing.synthetic.cameras import StereoRenderer
 from processing.synthetic.config import RenderOptions, SequenceConfig, synthetic_calibration
 from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.presets import preset_field
-from processing.synthetic.storage import SyntheticFrame
 
 #: The warm object of the matrix: a 0.4 m disk 8 m away (behind the plume at 5.5 m, in
 #: front of the plant wall at 12 m), 10 K above ambient, crossing the view at 1.2 m/s
@@ -45,16 +42,23 @@ WARM_OBJECT = MovingObject(z_m=8.0, radius_m=0.4, center_m=(-0.9, 0.1),
 
 @dataclass(frozen=True)
 class Scene:
-    """One fluid simulation of the ``field`` preset."""
+    """One fluid simulation of the ``field`` preset: turbulence seed, wind (m/s, left
+    camera frame), release rate (g/s), plume distance (m) and depth of the simulated
+    volume (m; deeper for a wind out of the image plane, see :func:`preset_field`)."""
 
     seed: int
     wind_m_s: tuple[float, float, float]
     release_rate_g_s: float = 3.0
+    distance_m: float = 5.5
+    depth_m: float = 1.44
 
     @property
     def name(self) -> str:
         w = ",".join(f"{x:g}" for x in self.wind_m_s)
-        return f"s{self.seed}_w({w})_q{self.release_rate_g_s:g}"
+        name = f"s{self.seed}_w({w})_q{self.release_rate_g_s:g}"
+        if self.distance_m != 5.5:
+            name += f"_z{self.distance_m:g}"
+        return name + (f"_D{self.depth_m:g}" if self.depth_m != 1.44 else "")
 
 
 @dataclass(frozen=True)
@@ -67,7 +71,8 @@ class Condition:
     rectifies the frames; ``lens_k1`` gives both lenses radial distortion (the scene's gas
     is then rendered through them, its own simulation). ``t_gas_k`` overrides the gas temperature
     (285 K against 300 K by default: a small difference is the low-contrast case);
-    ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation).
+    ``release_rate_g_s`` overrides the scenes' release rate (its own fluid simulation);
+    ``object_z_m`` the moving object's distance (m; None: :data:`WARM_OBJECT`'s 8 m).
     """
 
     name: str
@@ -80,6 +85,7 @@ class Condition:
     t_gas_k: float | None = None
     release_rate_g_s: float | None = None
     lens_k1: float = 0.0
+    object_z_m: float | None = None
     realistic: bool = True
 
 
@@ -181,7 +187,8 @@ def scene_config(scene: Scene, matrix: Matrix,
     rendered through it, so a distorted lens has its own cached gas)."""
     rate = scene.release_rate_g_s if release_rate_g_s is None else release_rate_g_s
     config = preset_field(n_frames=matrix.n_frames, wind_m_s=scene.wind_m_s,
-                          release_rate_g_s=rate, seed=scene.seed, voxel_m=matrix.voxel_m)
+                          release_rate_g_s=rate, seed=scene.seed, voxel_m=matrix.voxel_m,
+                          distance_m=scene.distance_m, depth_m=scene.depth_m)
     if lens_k1:
         config = replace(config, camera=replace(config.camera, k1=float(lens_k1)))
     return config
@@ -191,12 +198,18 @@ def condition_config(base: SequenceConfig, cond: Condition) -> SequenceConfig:
     """``base`` with the camera effects of ``cond``."""
     opts = RenderOptions(noise_netd_k=cond.noise_netd_k, jitter_px=cond.jitter_px,
                          gain_mismatch=cond.gain_mismatch,
-                         moving_object=WARM_OBJECT if cond.moving_object else None)
+                         moving_object=_moving_object(cond))
     rad = base.radiometry
     if cond.t_gas_k is not None:
         rad = replace(rad, t_gas_k=cond.t_gas_k)
     return replace(base, options=opts, radiometry=rad,
                    background=Background(kind=cond.background, seed=base.seed))
+
+
+def _moving_object(cond: Condition) -> MovingObject | None:
+    if not cond.moving_object:
+        return None
+    return WARM_OBJECT if cond.object_z_m is None else replace(WARM_OBJECT, z_m=cond.object_z_m)
 
 
 def condition_geometry(config: SequenceConfig, cond: Condition) -> StereoGeometry:
@@ -209,42 +222,25 @@ def condition_geometry(config: SequenceConfig, cond: Condition) -> StereoGeometr
     return StereoGeometry.from_calibration(calib, rectify=cond.calibrated and cond.lens_k1 != 0)
 
 
-def rectified_truth(frame: SyntheticFrame, geometry: StereoGeometry) -> SyntheticFrame:
-    """``frame`` with its ground truth moved onto the rectified grid the chain works on.
-
-    The simulator's truth lies on the distorted pixel grid of the left camera; a rectified
-    pixel sees the ray of the distorted pixel its map points to, so the truth is resampled
-    with the same maps (nearest neighbour: a gas velocity is never blended with "no gas").
-    Without maps the frame is returned as it is.
-    """
-    if geometry.maps_left is None:
-        return frame
-    mx, my = geometry.maps_left
-
-    def remap(a: np.ndarray) -> np.ndarray:
-        a = np.asarray(a)
-        src = a.astype(np.float32) if a.dtype != np.float32 else a
-        out = cv2.remap(src, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                        borderValue=0)
-        return out.astype(a.dtype) if a.dtype != bool else out > 0.5
-
-    return replace(frame, gt_velocity=remap(frame.gt_velocity),
-                   gt_position=remap(frame.gt_position), gt_mask=remap(frame.gt_mask),
-                   column_density_ppm_m=remap(frame.column_density_ppm_m))
-
-
 def chain_parameters(config: SequenceConfig) -> ChainParameters:
     """The chain's parameters for a field scene, as a site would set them.
 
     Registration is on (the daemon's default). The gas depth band is the simulation
-    volume's: d0 = s b / Z_far (the farthest gas), searched over 64 px. The joint solver
-    runs :data:`FIELD_DISPARITY_OPTIONS`.
+    volume's (:func:`appliance.evaluation.sceneflow_setup.band_disparities`: d0 = s b /
+    Z_far, the farthest gas, searched over at least 64 px). The joint solver runs
+    :data:`FIELD_DISPARITY_OPTIONS`.
     """
-    z_far = config.volume_origin_m[2] + config.fluid.shape[0] * config.fluid.voxel_m
-    cam = config.effective_camera()
-    d0 = float(np.floor(cam.s_px * cam.b_m / z_far))
-    return ChainParameters(d0=d0, sgm_num_disparities=64,
+    d0, n = scene_band(config)
+    return ChainParameters(d0=d0, sgm_num_disparities=n,
                            disparity_options=dict(FIELD_DISPARITY_OPTIONS))
+
+
+def scene_band(config: SequenceConfig) -> tuple[float, int]:
+    """d0 and the SGM range (px) of the gas depth band of a scene's simulated volume."""
+    z_near = config.volume_origin_m[2]
+    z_far = z_near + config.fluid.shape[0] * config.fluid.voxel_m
+    cam = config.effective_camera()
+    return band_disparities(cam.s_px, cam.b_m, z_near, z_far)
 
 
 # ---------------------------------------------------------------------------- evaluation

@@ -37,7 +37,7 @@ from processing.chain import (
 )
 from processing.metrics import sceneflow as sm
 from processing.metrics.baselines import sgm_brox, sgm_farneback
-from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
+from processing.synthetic import SyntheticFrame
 from processing.synthetic.reference import triplet_reference
 from processing.synthetic.storage import META_NAME, list_sequences
 from processing.velocity.quality import c_usf, scene_flow_energy
@@ -264,17 +264,6 @@ def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
     summary["flags"] = flags
     summary["seconds"] = time.perf_counter() - start
     return summary, fig
-
-
-def evaluate_sequence(directory: Path, params: ChainParameters,
-                      max_triples: int | None = None,
-                      log: Log | None = None) -> tuple[Metrics, dict[str, Any]]:
-    """:func:`evaluate_frames` with all three methods on a sequence directory."""
-    meta = read_sequence_meta(directory)
-    geometry = sequence_geometry(meta)
-    frames = [read_frame(directory, i, meta) for i in range(int(meta["n_frames"]))]
-    return evaluate_frames(frames, geometry, params, max_triples=max_triples,
-                           name=Path(directory).name, log=log)
 
 
 def find_sequences(data: Path) -> list[Path]:

@@ -66,7 +66,7 @@ from appliance.runtime.worker_result import WorkerResult
 from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import Mounting
 from processing.calibration import load_calibration
-from processing.chain import ChainParameters, StereoGeometry
+from processing.chain import StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -255,7 +255,7 @@ class Appliance:
         defaults = ({} if self.geometry is None else
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
-        self.params = ChainParameters.from_mapping({**defaults, **cfg.processing.parameters})
+        self.params = cfg.processing.chain_parameters(defaults)
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
 
