@@ -12,6 +12,7 @@ import pytest
 from appliance import cli
 from appliance.evaluation import bench_input
 from appliance.evaluation import benchmark as bm
+from processing.chain import ChainParameters
 
 
 def _positive_finite(x: object) -> bool:
@@ -36,6 +37,19 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert set(res["ratio_to_farneback"]) == {*bm.STAGES, "chain"}
     assert set(res["cold"]["stages_ms"]) == set(bm.STAGES)
     assert res["cold"]["chain_ms"] >= 0.99 * sum(res["cold"]["stages_ms"].values())
+    # the same warm triples once more with the active region off
+    full = res["no_active_region"]
+    assert set(full["stages_ms"]) == set(bm.STAGES)
+    assert all(_positive_finite(v) for v in full["stages_ms"].values())
+    assert full["chain_ms"] >= 0.99 * sum(full["stages_ms"].values())
+    assert set(full["ratio_to_farneback"]) == {*bm.STAGES, "chain"}
+    region = res["active_region"]
+    assert region["warm_triples"] == 2
+    assert 0 <= region["full_frame_triples"] <= 2
+    assert 0 < region["solved_share"] <= 1
+    if region["full_frame_triples"] < 2:
+        assert 0 < region["box_share"] < 1
+    assert res["image_size"] == [320, 240]
     floor = res["floor"]
     assert all(_positive_finite(floor[k]) for k in
                ("bytes_per_triple", "cache_bandwidth_gb_s", "dram_bandwidth_gb_s"))
@@ -44,6 +58,7 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     text = capsys.readouterr().out
     assert "disparity" in text and "pairs/s" in text and "load average" in text
     assert "roofline floor" in text and "cold" in text
+    assert "no region" in text and "active region:" in text
     # the generated input was cached under --cache-dir
     assert len(list((tmp_path / "cache").glob("blob-*.npz"))) == 1
 
@@ -73,7 +88,7 @@ def test_triples_consecutive_with_gap_at_wrap() -> None:
 
 @pytest.mark.parametrize("change", [
     ["--seconds", "0"], ["--runs", "0"], ["--workers-max", "0"], ["--frames", "3"],
-    ["--warmup", "0"], ["--seconds", "nan"],
+    ["--warmup", "0"], ["--seconds", "nan"], ["--size", "800x600"], ["--size", "640"],
 ])
 def test_bad_options_exit_2(change: list[str], tmp_path: Path) -> None:
     assert cli.main(["bench", "--cache-dir", str(tmp_path), *change]) == cli.EXIT_USAGE
@@ -97,3 +112,31 @@ def test_unwritable_cache_dir_still_gives_frames(tmp_path: Path,
     frames = bm.load_frames("blob", n_frames=4, cache_dir=blocker / "cache")
     assert frames.left.shape == (4, 240, 320)
     assert "not cached" in capsys.readouterr().err
+
+
+def test_solved_share_of_a_region() -> None:
+    class Result:
+        valid = np.zeros((240, 320), dtype=bool)
+        region: tuple[int, int, int, int] | None = (20, 140, 40, 200)  # 120 x 160 px
+
+    r = Result()
+    assert bm._solved_share(r) == pytest.approx(120 * 160 / (240 * 320))
+    r.region = None  # the whole frame
+    assert bm._solved_share(r) == 1.0
+
+
+def test_warm_times_report_the_region() -> None:
+    """Warm calls through the real chain: the box shares add up with the whole-frame calls."""
+    frames = bm.blob_frames(n_frames=6)
+    st = bm.measure_stages(frames, runs=2, warmup=1)
+    for t in (st.warm, st.times("warm_full")):
+        assert 0 <= t.full_frame_calls <= t.runs == 2
+    # with the active region off every warm triple solves the whole frame
+    assert st.times("warm_full").full_frame_calls == 2
+    assert st.times("warm_full").solved_share == 1.0
+    assert st.times("warm_full").box_share is None
+    no_region = bm.measure_stages(frames, ChainParameters(active_region=False), runs=1,
+                                  warmup=1)
+    assert no_region.warm_full is None
+    with pytest.raises(ValueError, match="warm_full"):
+        no_region.times("warm_full")

@@ -1,4 +1,4 @@
-"""``ogiflow bench``: speed of the whole scene-flow chain at 320x240.
+"""``ogiflow bench``: speed of the whole scene-flow chain at 320x240 or 640x480.
 
 See :mod:`appliance.evaluation.benchmark` for what is measured and on which input.
 """
@@ -21,10 +21,14 @@ def register(root: argparse._SubParsersAction) -> None:
         "bench",
         help="time every stage of the scene-flow chain and pairs/s with 1..N workers",
         description=(
-            "Runs the scene-flow chain (compute_scene_flow, the daemon's code) at 320x240 on "
+            "Runs the scene-flow chain (compute_scene_flow, the daemon's code, default "
+            "parameters) at 320x240 (or --size 640x480) on "
             "raw 16-bit stereo frames of a moving gas plume and reports: the median wall time "
             "of each stage and of the whole chain, warm (consecutive triples, started from "
-            "the previous one as in the daemon) and cold (each triple on its own), after a "
+            "the previous one as in the daemon), warm again with the active region off (the "
+            "solvers on the whole frame; with the mean share of the frame the active region "
+            "covered and the warm triples that solved the whole frame anyway) and cold (each "
+            "triple on its own), after a "
             "warm-up (one OpenCV and one numba thread), the median CPU time of a call, OpenCV "
             "Farneback on the same differential images with each stage's ratio to it (the "
             "ratio stays comparable on a loaded machine), a roofline floor (bytes streamed "
@@ -38,7 +42,9 @@ def register(root: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--json", type=Path, metavar="OUT",
                    help='write {"stages_ms": {...}, "chain_ms": ..., "pairs_per_s": '
-                        '{"1": ..., "2": ...}} plus reference and load fields to OUT')
+                        '{"1": ..., "2": ...}, "no_active_region": {"stages_ms": ..., '
+                        '"chain_ms": ...}, "active_region": {...}} plus reference and load '
+                        'fields to OUT')
     p.add_argument("--seconds", type=float, default=10.0, metavar="S",
                    help="wall time of each throughput measurement, s (default 10)")
     p.add_argument("--runs", type=int, default=30, metavar="N",
@@ -51,11 +57,28 @@ def register(root: argparse._SubParsersAction) -> None:
                    help="input: 'field' = synthetic gas plume from the renderer's field preset "
                         "(default; generated once, then cached), 'blob' = analytic moving "
                         "textured blob (no simulation)")
+    p.add_argument("--size", default="320x240", metavar="WxH",
+                   help="image size: 320x240 (default) or 640x480 (same field of view, "
+                        "twice the camera constant)")
     p.add_argument("--frames", type=int, default=16, metavar="N",
                    help="length of the input sequence, cycled through (default 16)")
     p.add_argument("--cache-dir", type=Path, metavar="DIR",
                    help="where generated input is cached (default ~/.cache/ogiflow/bench)")
     p.set_defaults(func=run)
+
+
+def _size(text: str) -> tuple[int, int]:
+    """``WxH`` -> (W, H), one of the bench's sizes; ValueError otherwise (exit 2)."""
+    from appliance.evaluation.bench_input import SIZES
+
+    known = ", ".join(f"{w}x{h}" for w, h in SIZES)
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--size expects WxH ({known}), got {text!r}") from None
+    if (w, h) not in SIZES:
+        raise ValueError(f"--size {text}: unsupported; choose from {known}")
+    return w, h
 
 
 def _check_args(args: argparse.Namespace) -> None:
@@ -69,6 +92,7 @@ def _check_args(args: argparse.Namespace) -> None:
         raise ValueError(f"--workers-max must be >= 1, got {args.workers_max}")
     if args.frames < 4:
         raise ValueError(f"--frames must be >= 4, got {args.frames}")
+    _size(args.size)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     from appliance.evaluation import benchmark as bm
 
     load_start = bm.load_average()
-    frames = bm.load_frames(args.source, n_frames=args.frames, cache_dir=args.cache_dir)
+    frames = bm.load_frames(args.source, n_frames=args.frames, cache_dir=args.cache_dir,
+                            image_size=_size(args.size))
     try:
         st = bm.measure_stages(frames, runs=args.runs, warmup=args.warmup)
         through = [bm.measure_throughput(frames, n, seconds=args.seconds, warmup=args.warmup)
@@ -88,23 +113,35 @@ def run(args: argparse.Namespace) -> int:
     load_end = bm.load_average()
 
     warm, cold, fl = st.warm, st.cold, st.floor
-    ratios, cold_ratios = st.ratios("warm"), st.ratios("cold")
-    print(f"input: {args.source}, {len(frames.times_s)} frames 320x240 uint16 cycled; "
-          f"{warm.runs} timed chain calls each warm and cold after {args.warmup} warm-up; "
-          f"1 thread per process")
+    full = st.times("warm_full")
+    ratios, cold_ratios, full_ratios = st.ratios("warm"), st.ratios("cold"), st.ratios("warm_full")
+    w, h = frames.image_size
+    print(f"input: {args.source}, {len(frames.times_s)} frames {w}x{h} uint16 cycled; "
+          f"{warm.runs} timed chain calls each warm, warm without the active region and "
+          f"cold after {args.warmup} warm-up; 1 thread per process")
     print("warm = consecutive triple started from the previous one (as in the daemon); "
+          "no region = the same with the active region off (solvers on the whole frame); "
           "cold = a triple on its own (full pyramid, SGM start)")
-    print(f"{'stage':<18}{'warm ms':>9}{'x Fbck':>8}{'CPU ms':>8}{'cold ms':>10}{'x Fbck':>8}")
+    print(f"{'stage':<18}{'warm ms':>9}{'x Fbck':>8}{'CPU ms':>8}{'no region':>11}{'x Fbck':>8}"
+          f"{'cold ms':>10}{'x Fbck':>8}")
     for name in bm.STAGES:
         print(f"{name:<18}{warm.stages_ms[name]:>9.2f}{ratios[name]:>8.2f}"
-              f"{warm.stages_cpu_est_ms[name]:>8.2f}{cold.stages_ms[name]:>10.2f}"
+              f"{warm.stages_cpu_est_ms[name]:>8.2f}{full.stages_ms[name]:>11.2f}"
+              f"{full_ratios[name]:>8.2f}{cold.stages_ms[name]:>10.2f}"
               f"{cold_ratios[name]:>8.2f}")
     print(f"{'chain (total)':<18}{warm.chain_ms:>9.2f}{ratios['chain']:>8.2f}{warm.cpu_ms:>8.2f}"
+          f"{full.chain_ms:>11.2f}{full_ratios['chain']:>8.2f}"
           f"{cold.chain_ms:>10.2f}{cold_ratios['chain']:>8.2f}")
     print("CPU ms: process CPU time of a call (measured; per stage estimated from the "
           "call's CPU/wall ratio)")
+    box = warm.box_share
+    print(f"active region: the warm solvers worked on {100 * warm.solved_share:.1f} % of the "
+          f"frame on average; {warm.full_frame_calls} of {warm.runs} warm triples solved the "
+          f"whole frame"
+          + ("" if box is None else f", the others a box of {100 * box:.1f} % on average"))
     fb_cpu = st.farneback_cpu_ms
-    print(f"by CPU time (steadier under load): warm chain {warm.cpu_ms / fb_cpu:.2f}x, "
+    print(f"by CPU time (steadier under load): warm chain {warm.cpu_ms / fb_cpu:.2f}x "
+          f"({full.cpu_ms / fb_cpu:.2f}x without the active region), "
           f"cold chain {cold.cpu_ms / fb_cpu:.2f}x Farneback")
     print(f"Farneback reference (OpenCV, same differential images): {st.farneback_ms:.2f} ms "
           f"wall, {st.farneback_cpu_ms:.2f} ms CPU")
@@ -131,6 +168,13 @@ def run(args: argparse.Namespace) -> int:
             "cold": {"stages_ms": cold.stages_ms, "chain_ms": cold.chain_ms,
                      "chain_cpu_ms": cold.cpu_ms,
                      "ratio_to_farneback": cold_ratios},
+            "active_region": {"solved_share": warm.solved_share, "box_share": box,
+                              "full_frame_triples": warm.full_frame_calls,
+                              "warm_triples": warm.runs},
+            "no_active_region": {"stages_ms": full.stages_ms, "chain_ms": full.chain_ms,
+                                 "chain_cpu_ms": full.cpu_ms,
+                                 "stages_cpu_est_ms": full.stages_cpu_est_ms,
+                                 "ratio_to_farneback": full_ratios},
             "cpu_ms_per_pair": {str(t.workers): t.cpu_ms_per_pair for t in through},
             "pairs_per_cpu_s": {str(t.workers): t.pairs_per_cpu_s for t in through},
             "farneback_ms": st.farneback_ms,
@@ -141,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
                       "dram_bandwidth_gb_s": fl.dram_bandwidth_gb_s,
                       "cache_floor_ms": fl.cache_floor_ms, "dram_floor_ms": fl.dram_floor_ms},
             "source": args.source,
+            "image_size": [w, h],
             "runs": warm.runs,
             "seconds": args.seconds,
             "load_average": {"start": load_start, "end": load_end, "cpus": _cpu_count()},

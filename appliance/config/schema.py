@@ -264,6 +264,13 @@ class SimulationConfig:
     release_rate_g_s: float = _opt("gas release rate of the simulated leak, g/s", 3.0,
                                    gt=0.0, max=1000.0)
     seed: int = _opt("random seed of the simulated turbulence", 7, min=0)
+    width_px: Literal[320, 640] = _opt(
+        "image width of the simulated cameras, px: 320 (GF320 class) or 640 (GF620 class); "
+        "the camera constant grows with it (780 px at 320), so the field of view stays",
+        320)
+    height_px: Literal[240, 480] = _opt(
+        "image height of the simulated cameras, px: 240 with width_px 320, 480 with 640",
+        240)
     scene: Literal["leak", "no_release"] = _opt(
         "what the simulated cameras show: leak (the gas release) or no_release (no gas, "
         "but temporal noise, camera jitter, a warm person walking to and fro once per loop "

@@ -1,12 +1,14 @@
-"""Speed of the whole scene-flow chain at 320x240 (issues 3 and 15; ``ogiflow bench``).
+"""Speed of the whole scene-flow chain at 320x240 or 640x480 (``ogiflow bench``).
 
 Measures, in one run on one input (:mod:`appliance.evaluation.bench_input`):
 
 - the median wall time of each stage of :func:`processing.chain.compute_scene_flow` (its own
-  ``timings_ms``) and of the whole call, twice: *warm*, over consecutive triples through one
+  ``timings_ms``) and of the whole call: *warm*, over consecutive triples through one
   :class:`~processing.chain.ChainState` as the daemon's workers run them (only calls that
-  did start warm count), and *cold*, every triple on its own (full pyramid, SGM start), after
-  a warm-up (numba loads or compiles its kernels on the first call);
+  did start warm count), once as configured and once more with the active region off (the
+  solvers on the whole frame), with the mean share of the frame the solvers worked on; and
+  *cold*, every triple on its own (full pyramid, SGM start), after a warm-up (numba loads
+  or compiles its kernels on the first call);
 - the median process CPU time of one call (load-independent as long as the process is not
   starved of cache and memory bandwidth);
 - OpenCV Farneback flow on the same differential images as a reference, and each stage's
@@ -21,6 +23,7 @@ Measures, in one run on one input (:mod:`appliance.evaluation.bench_input`):
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing as mp
 import os
 import queue
@@ -32,6 +35,7 @@ from typing import Any
 from appliance.evaluation import roofline
 from appliance.evaluation.bench_input import (
     FRAME_RATE_HZ,
+    SIZES,
     SOURCES,
     BenchFrames,
     blob_frames,
@@ -46,7 +50,7 @@ from processing.chain import ChainParameters, ChainState, compute_scene_flow
 from processing.chain.state import STRIDES
 from processing.flow.opencv import farneback_flow
 
-__all__ = ["FRAME_RATE_HZ", "SOURCES", "STAGES", "BenchFrames", "StageTimes", "Throughput",
+__all__ = ["FRAME_RATE_HZ", "SIZES", "SOURCES", "STAGES", "BenchFrames", "StageTimes", "Throughput",
            "blob_frames", "field_frames", "geometry", "iter_triples", "load_average",
            "load_frames", "measure_stages", "measure_throughput", "single_thread"]
 
@@ -79,21 +83,46 @@ class ChainTimes:
     chain_ms: float
     cpu_ms: float
     runs: int
+    #: Mean share of the frame the solvers worked on (``SceneFlowResult.region``; a whole
+    #: frame counts 1) and the calls that solved the whole frame.
+    solved_share: float = 1.0
+    full_frame_calls: int = 0
+
+    @property
+    def box_share(self) -> float | None:
+        """Mean share of the frame of the active-region boxes alone (None: no call used
+        one)."""
+        boxed = self.runs - self.full_frame_calls
+        if boxed == 0:
+            return None
+        return (self.solved_share * self.runs - self.full_frame_calls) / boxed
 
 
 @dataclass(frozen=True)
 class StageTimes:
-    """Warm and cold chain times, the Farneback reference and the roofline floor."""
+    """Warm and cold chain times, the Farneback reference and the roofline floor.
+
+    ``warm_full`` is the warm chain on the same triples with the active region off (every
+    warm solve on the whole frame); None when the parameters had it off already.
+    """
 
     warm: ChainTimes
     cold: ChainTimes
     farneback_ms: float
     farneback_cpu_ms: float
     floor: Any  # roofline.Floor
+    warm_full: ChainTimes | None = None
+
+    def times(self, kind: str) -> ChainTimes:
+        """The chain times of ``kind``: "warm", "warm_full" or "cold"."""
+        t = {"warm": self.warm, "cold": self.cold, "warm_full": self.warm_full}[kind]
+        if t is None:
+            raise ValueError(f"no {kind} times were measured")
+        return t
 
     def ratios(self, kind: str = "warm") -> dict[str, float]:
         """Each stage's and the chain's median over Farneback's median."""
-        t = self.warm if kind == "warm" else self.cold
+        t = self.times(kind)
         out = {k: v / self.farneback_ms for k, v in t.stages_ms.items()}
         out["chain"] = t.chain_ms / self.farneback_ms
         return out
@@ -103,13 +132,14 @@ def _time_calls(calls: Any, runs: int) -> ChainTimes:
     """Run ``calls`` (an iterator of zero-argument chain calls) ``runs`` times."""
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
     per_stage_cpu: dict[str, list[float]] = {s: [] for s in STAGES}
-    total, cpu = [], []
+    total, cpu, shares = [], [], []
     for _ in range(runs):
         call = next(calls)
         c0 = time.process_time()
         result = call()
         cpu.append((time.process_time() - c0) * 1e3)
         total.append(result.timings_ms["total"])
+        shares.append(_solved_share(result))
         share = cpu[-1] / total[-1]
         for s in STAGES:
             per_stage[s].append(result.timings_ms.get(s, 0.0))
@@ -117,36 +147,60 @@ def _time_calls(calls: Any, runs: int) -> ChainTimes:
     return ChainTimes(
         stages_ms={s: statistics.median(v) for s, v in per_stage.items()},
         stages_cpu_est_ms={s: statistics.median(v) for s, v in per_stage_cpu.items()},
-        chain_ms=statistics.median(total), cpu_ms=statistics.median(cpu), runs=runs)
+        chain_ms=statistics.median(total), cpu_ms=statistics.median(cpu), runs=runs,
+        solved_share=statistics.fmean(shares), full_frame_calls=shares.count(1.0))
 
 
-def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> StageTimes:
-    """Median per-stage and whole-chain times, warm and cold, in this process (one thread)."""
+def _solved_share(result: Any) -> float:
+    """Share of the frame the solvers of one call worked on (1 = the whole frame)."""
+    if result.region is None:
+        return 1.0
+    y0, y1, x0, x1 = result.region
+    h, w = result.valid.shape
+    return (y1 - y0) * (x1 - x0) / (h * w)
+
+
+def _warm_calls(frames: BenchFrames, geo: Any, params: ChainParameters,
+                warmup: int) -> Any:
+    """Chain calls over consecutive triples through one state, after ``warmup`` untimed
+    ones; only calls that start warm are yielded (the wrap of the input starts untimed)."""
+    triples = iter_triples(frames)
+    state = ChainState()
+    for _ in range(warmup):
+        compute_scene_flow(*next(triples), geo, params, state)
+    while True:
+        args = next(triples)
+        if not state.follows(args[2]):
+            compute_scene_flow(*args, geo, params, state)
+            continue
+        yield lambda args=args: compute_scene_flow(*args, geo, params, state)
+
+
+def measure_stages(frames: BenchFrames, params: ChainParameters | None = None, *,
+                   runs: int = 30, warmup: int = 3) -> StageTimes:
+    """Median per-stage and whole-chain times, warm and cold, in this process (one thread).
+
+    ``params`` (default: the chain's defaults) run warm and cold; with its active region on,
+    the warm chain is timed a second time on the same triples with it off (``warm_full``).
+    """
 
     if runs < 1 or warmup < 1:
         raise ValueError(f"runs and warmup must be >= 1, got {runs} and {warmup}")
     single_thread()
-    geo, params = geometry(), ChainParameters()
+    geo = geometry(frames.image_size)
+    params = ChainParameters() if params is None else params
     triples = iter_triples(frames)
-    state = ChainState()
-    result = None
-    for _ in range(warmup):
-        result = compute_scene_flow(*next(triples), geo, params, state)
-
-    def warm_calls() -> Any:
-        while True:
-            args = next(triples)
-            if not state.follows(args[2]):  # the wrap of the input: start it, untimed
-                compute_scene_flow(*args, geo, params, state)
-                continue
-            yield lambda args=args: compute_scene_flow(*args, geo, params, state)
 
     def cold_calls() -> Any:
         while True:
             args = next(triples)
             yield lambda args=args: compute_scene_flow(*args, geo, params)
 
-    warm = _time_calls(warm_calls(), runs)
+    warm = _time_calls(_warm_calls(frames, geo, params, warmup), runs)
+    warm_full = None
+    if params.active_region:
+        no_region = dataclasses.replace(params, active_region=False)
+        warm_full = _time_calls(_warm_calls(frames, geo, no_region, warmup), runs)
     cold = _time_calls(cold_calls(), runs)
     result = compute_scene_flow(*next(triples), geo, params)
     d0, d1 = result.diff_left
@@ -159,7 +213,8 @@ def measure_stages(frames: BenchFrames, *, runs: int = 30, warmup: int = 3) -> S
             fb_cpu.append((time.process_time() - c0) * 1e3)
     floor = roofline.floor(geo.image_size[::-1], params, warm=True)
     return StageTimes(warm=warm, cold=cold, farneback_ms=statistics.median(fb),
-                      farneback_cpu_ms=statistics.median(fb_cpu), floor=floor)
+                      farneback_cpu_ms=statistics.median(fb_cpu), floor=floor,
+                      warm_full=warm_full)
 
 
 @dataclass(frozen=True)
@@ -197,7 +252,7 @@ def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, strid
     os.environ["OMP_NUM_THREADS"] = "1"
     single_thread()
 
-    geo, params = geometry(), ChainParameters()
+    geo, params = geometry(frames.image_size), ChainParameters()
     state = ChainState(stride=stride if stride in STRIDES else 1)
     triples = iter_triples(frames)
     for _ in range(offset):

@@ -28,12 +28,14 @@ from typing import Any
 
 import numpy as np
 
-from appliance.config import CameraConfig, Config, SimulationConfig
+from appliance.config import CameraConfig, Config, ConfigError, SimulationConfig
 from appliance.progress import ProgressBar
 from drivers.camera.replay_folder import folder_frame_rate_hz
+from processing.chain import ChainParameters
 from processing.synthetic import read_frame, read_sequence_meta, write_sequence
 from processing.synthetic.presets import (
     FIELD_FRAME_RATE_HZ,
+    FIELD_IMAGE_SIZES,
     preset_field,
     preset_no_release,
 )
@@ -68,6 +70,8 @@ def scene_key(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]
     # keys added later stay out of the hash at their defaults: cached scenes stay valid
     if params.get("scene") == "leak":
         del params["scene"]
+    if (params.get("width_px"), params.get("height_px")) == (320, 240):
+        del params["width_px"], params["height_px"]
     if not params.get("release_schedule"):
         params.pop("release_schedule", None)
     params["wind_m_s"] = [round(float(w), 3) for w in wind_camera_m_s]
@@ -139,18 +143,37 @@ def ensure_scene(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, flo
     return folder
 
 
+def check_image_size(sim: SimulationConfig) -> tuple[int, int]:
+    """(W, H) of the simulated cameras, px.
+
+    Raises
+    ------
+    ConfigError
+        When ``width_px`` and ``height_px`` are not a size the field scene renders (one
+        field of view: 320x240 or 640x480); exit code 2, before any device opens.
+    """
+
+
+    size = (int(sim.width_px), int(sim.height_px))
+    if size not in FIELD_IMAGE_SIZES:
+        known = " or ".join(f"{w}x{h}" for w, h in FIELD_IMAGE_SIZES)
+        raise ConfigError([f"simulation.height_px: {size[1]} does not go with width_px "
+                           f"{size[0]}: the simulated cameras are {known} (one field of view)"])
+    return size
+
+
 def scene_config(sim: SimulationConfig, wind_camera_m_s: tuple[float, float, float]) -> Any:
     """The synthetic sequence (``SequenceConfig``) of the configured scene.
 
     ``leak``: the ``field`` preset, its release switched by ``release_schedule`` whose period
     is the loop. ``no_release``: the ``no_release`` preset with the walker's to-and-fro and
     the background drift both lasting one loop, so the looped scene has no jump (the drift's
-    steepest slope stays that of the preset).
+    steepest slope stays that of the preset). Both at ``width_px`` x ``height_px``.
     """
 
     common = {"n_frames": sim.frames, "wind_m_s": tuple(float(w) for w in wind_camera_m_s),
               "b_m": sim.baseline_m, "distance_m": sim.distance_m, "seed": sim.seed,
-              "voxel_m": sim.voxel_m}
+              "voxel_m": sim.voxel_m, "image_size": check_image_size(sim)}
     loop_s = sim.frames / FIELD_FRAME_RATE_HZ
     if sim.scene == "no_release":
         return preset_no_release(walker_period_s=loop_s, drift_period_s=loop_s, **common)
@@ -227,6 +250,8 @@ class SimulatedSite:
     """
 
     def __init__(self, cfg: Config, rotation: np.ndarray) -> None:
+        if self.renders_scene(cfg):
+            check_image_size(cfg.simulation)  # a configuration error: before any device
         self.cfg = cfg
         self.wind_camera_m_s = self._scene_wind(rotation)
         self.folder: Path | None = None
@@ -289,13 +314,25 @@ class SimulatedSite:
 
         The leak scene has no jitter and a featureless background (the paper's ideal
         conditions): registration could only lock onto the gas. The minimum disparity d0 is
-        that of twice the plume distance.
+        that of twice the plume distance. Wider cameras than 320 px see the same scene with
+        more pixels: the chain's settings in px (the SGM search range, hence the depth band;
+        the largest motion; the active region's margin) grow with the width, so they keep
+        meaning the same metres and m/s.
         """
         if self.folder is None:
             return {}
+        sim = self.cfg.simulation
         # the no-release scene's plant wall is textured and jittered: register on it
-        return {"register": self.cfg.simulation.scene == "no_release",
-                "d0": camera_constant_px * baseline_m / (2.0 * self.cfg.simulation.distance_m)}
+        out: dict[str, object] = {
+            "register": sim.scene == "no_release",
+            "d0": camera_constant_px * baseline_m / (2.0 * sim.distance_m)}
+        k = check_image_size(sim)[0] // 320
+        if k > 1:
+            base = ChainParameters()
+            out.update(sgm_num_disparities=k * base.sgm_num_disparities,
+                       max_motion_px=k * base.max_motion_px,
+                       region_margin_px=k * base.region_margin_px)
+        return out
 
     def shown_true_rate_g_s(self) -> float | None:
         """The true release rate shown beside the measured one (operator's status), g/s:

@@ -40,6 +40,31 @@ TABLE2_PRESETS: tuple[str, ...] = ("table2_1", "table2_2", "table2_3")
 _TABLE2_EXTENT_M = 0.4  # 100 voxels of 4 mm
 #: Frame rate of the ``field`` and ``no_release`` scenes (the appliance's cameras), Hz.
 FIELD_FRAME_RATE_HZ = 30.0
+#: Image sizes (W, H) of the ``field`` and ``no_release`` cameras, px. All show the same 4:3
+#: field of view (the camera constant grows with the width), the one the simulated volume
+#: is sized for: 320x240 (GF320 class) and 640x480 (GF620 class, 4x the pixels).
+FIELD_IMAGE_SIZES: tuple[tuple[int, int], ...] = ((320, 240), (640, 480))
+#: Camera constant of the 320 px wide field camera, px (the paper's, Sec. 5.1).
+FIELD_CAMERA_CONSTANT_PX = 780.0
+
+
+def field_camera(image_size: tuple[int, int] = (320, 240), b_m: float = 0.3) -> StereoCamera:
+    """The ``field`` scene's ideal camera pair at ``image_size`` (W, H) px.
+
+    The camera constant scales with the width, so every size sees the same field of view.
+
+    Raises
+    ------
+    ValueError
+        For a size outside :data:`FIELD_IMAGE_SIZES` (another field of view would show the
+        simulated volume's faces, or miss the plume).
+    """
+    size = (int(image_size[0]), int(image_size[1]))
+    if size not in FIELD_IMAGE_SIZES:
+        known = ", ".join(f"{w}x{h}" for w, h in FIELD_IMAGE_SIZES)
+        raise ValueError(f"the field scene renders {known} images, not {size[0]}x{size[1]}")
+    return StereoCamera(width=size[0], height=size[1],
+                        s_px=FIELD_CAMERA_CONSTANT_PX * size[0] / 320.0, b_m=b_m)
 
 
 def _table2(
@@ -94,9 +119,14 @@ def preset_field(
     seed: int = 7,
     voxel_m: float = 0.03,
     depth_m: float = 1.44,
+    image_size: tuple[int, int] = (320, 240),
     **overrides: Any,
 ) -> SequenceConfig:
     """The appliance's simulated cameras: 30 Hz, plume ~5.5 m away, wind from the anemometer.
+
+    ``image_size`` (W, H) is one of :data:`FIELD_IMAGE_SIZES` (:func:`field_camera`); the
+    figures below are those of 320x240, a 640x480 camera sees everything at twice the
+    pixels.
 
     Grid 96 x 64 x 48 (X, Y, Z) of 3 cm (2.88 x 1.92 x 1.44 m, wider and taller than both
     cameras' views at 5.5 m, so gas leaves the simulation outside the images), two 1/60 s steps
@@ -113,7 +143,7 @@ def preset_field(
     cost grows with the cells. 2.88 m lets a plume 45 deg out of the image plane leave
     through the side of the view at 5.5 m.
     """
-    cam = StereoCamera(b_m=b_m)
+    cam = field_camera(image_size, b_m)
     if not 0.005 <= voxel_m <= 0.2:
         raise ValueError(f"voxel_m must be within 0.005..0.2 m, got {voxel_m}")
     if not 1.44 <= depth_m <= 12.0:
