@@ -114,8 +114,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
 
     box = _region(pl, params, warm, stream)
-    cl, cr, cwarm, cblank, history = _crop(box, pl, pr, warm, blanked,
-                                           stream.change_history(follows))
+    cl, cr, cwarm, cblank, history = _crop(box, pl, pr, warm, blanked, stream, follows)
     flow = _flow(cl, params, cwarm)
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
@@ -141,9 +140,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
         valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=mask, phi=phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
-        warm=warm is not None,
-        region=None if box is None else (box.y0, box.y1, box.x0, box.x1),
-    )
+        warm=warm is not None, region=None if box is None else box.bounds)
 
 
 @dataclass
@@ -261,11 +258,12 @@ def _region(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | N
 
 def _crop(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
           warm: WarmStart | None, blanked: tuple[np.ndarray, np.ndarray] | None,
-          history: tuple[np.ndarray | None, int]
+          stream: ChainState, follows: bool
           ) -> tuple[PreprocessedTriple, PreprocessedTriple, WarmStart | None,
                      tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray | None, int]]:
     """The solvers' inputs inside ``box``: left images, warm fields and history on the box,
     the right images ``box.shift`` columns further left, the disparity less that shift."""
+    history = stream.change_history(follows)
     if box is None:
         return pl, pr, warm, blanked, history
 

@@ -44,6 +44,11 @@ class Box:
     shift: int = 0
 
     @property
+    def bounds(self) -> tuple[int, int, int, int]:
+        """(y0, y1, x0, x1), px."""
+        return self.y0, self.y1, self.x0, self.x1
+
+    @property
     def left(self) -> tuple[slice, slice]:
         """Index of the box in the left image."""
         return slice(self.y0, self.y1), slice(self.x0, self.x1)
