@@ -128,15 +128,14 @@ def test_solved_share_of_a_region() -> None:
 def test_warm_times_report_the_region() -> None:
     """Warm calls through the real chain: the box shares add up with the whole-frame calls."""
     frames = bm.blob_frames(n_frames=6)
-    st = bm.measure_stages(frames, runs=2, warmup=1)
+    st = bm.measure_stages(frames, ChainParameters(active_region=True), runs=2, warmup=1)
     for t in (st.warm, st.times("warm_full")):
         assert 0 <= t.full_frame_calls <= t.runs == 2
     # with the active region off every warm triple solves the whole frame
     assert st.times("warm_full").full_frame_calls == 2
     assert st.times("warm_full").solved_share == 1.0
     assert st.times("warm_full").box_share is None
-    no_region = bm.measure_stages(frames, ChainParameters(active_region=False), runs=1,
-                                  warmup=1)
+    no_region = bm.measure_stages(frames, runs=1, warmup=1)  # the default: region off
     assert no_region.warm_full is None
     with pytest.raises(ValueError, match="warm_full"):
         no_region.times("warm_full")
