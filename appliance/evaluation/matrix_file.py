@@ -129,21 +129,22 @@ def _entries(where: str, data: Any) -> list[Any]:
 def _scenes(where: str, data: Any) -> tuple[Scene, ...]:
     scenes = tuple(_build(Scene, f"{where}[{i}]", s, ("seed", "wind_m_s"))
                    for i, s in enumerate(_entries(where, data)))
-    names = [s.name for s in scenes]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise MatrixFileError(f"{where}: the same scene twice: {', '.join(dup)}")
+    _check_unique(f"{where}: the same scene twice", [s.name for s in scenes])
     return scenes
 
 
 def _conditions(where: str, data: Any) -> tuple[Condition, ...]:
     conds = tuple(_build(Condition, f"{where}[{i}]", c, ("name",))
                   for i, c in enumerate(_entries(where, data)))
-    names = [c.name for c in conds]
+    _check_unique(f"{where}: condition names must be unique", [c.name for c in conds])
+    return conds
+
+
+def _check_unique(message: str, names: list[str]) -> None:
+    """MatrixFileError ``message: <the repeated names>`` if a name appears twice."""
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        raise MatrixFileError(f"{where}: condition names must be unique: {', '.join(dup)}")
-    return conds
+        raise MatrixFileError(f"{message}: {', '.join(dup)}")
 
 
 def read_document(path: Path) -> Any:
