@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from processing.segmentation.segment import robust_spread
+
 #: Contrast over the robust spread above which a pixel counts as active (the
 #: segmentation's own initial threshold, :func:`processing.segmentation.segment.initial_phi`).
 ACTIVE_THRESHOLD = 2.0
@@ -88,10 +90,8 @@ def active_pixels(diffs: tuple[np.ndarray, ...], flow: np.ndarray | None) -> np.
     if flow is not None:
         features.append(np.hypot(flow[..., 0], flow[..., 1]))
     for f in features:
-        # Spread as in the segmentation: the mean absolute value, x 1.2533 (Gaussian).
-        spread = 1.2533 * float(f.mean()) + 1e-6
         score = cv2.GaussianBlur(f.astype(np.float32), (0, 0), 2.0)
-        active |= score > ACTIVE_THRESHOLD * spread
+        active |= score > ACTIVE_THRESHOLD * robust_spread(f)
     return active
 
 

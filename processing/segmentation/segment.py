@@ -60,9 +60,13 @@ def _activity(diff: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """
     a = np.abs(diff - np.float32(0.5))
     m = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
-    s_i = 1.2533 * float(a.mean()) + 1e-6
-    s_w = 1.2533 * float(m.mean()) + 1e-6
-    return a, m, s_i, s_w
+    return a, m, robust_spread(a), robust_spread(m)
+
+
+def robust_spread(magnitude: np.ndarray) -> float:
+    """Spread of a non-negative feature (|I_diff - 0.5|, |w|) over the frame: its mean
+    (x 1.2533, the Gaussian mean-absolute to standard deviation factor), never 0."""
+    return 1.2533 * float(magnitude.mean()) + 1e-6
 
 
 def initial_phi(diff: np.ndarray, flow: np.ndarray, *, threshold: float = 2.0) -> np.ndarray:
