@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from appliance.evaluation.bench_input import blob_frames
+from appliance.evaluation.bench_input import geometry as bench_geometry
 from processing.chain import (
     ChainParameters,
     ChainState,
@@ -105,6 +107,31 @@ def test_state_warm_starts_only_consecutive_triples() -> None:
     compute_scene_flow(left, right, (5.0, 6.0, 7.0), GEOMETRY, PARAMS, state)
     assert state.previous_times == (5.0, 6.0, 7.0)
     assert state.previous_flow is not first_flow
+
+
+def test_an_implausible_speed_is_flagged_and_the_next_triple_starts_cold() -> None:
+    """A mean speed above ``max_gas_speed_m_s`` is no measurement: the summary is invalid
+    and flagged, and its fields do not seed the next triple (the bound is set below the
+    drifting blob's speed here to make it implausible)."""
+    frames = blob_frames(n_frames=4)
+    geo = bench_geometry()
+
+    def two(params: ChainParameters) -> list:
+        state = ChainState()
+        return [compute_scene_flow(list(frames.left[k:k + 3]), list(frames.right[k:k + 3]),
+                                   frames.times_s[k:k + 3], geo, params, state)
+                for k in (0, 1)]
+
+    ok = two(ChainParameters(d0=20.0))
+    assert ok[0].summary.valid and "implausible_speed" not in ok[0].summary.flags
+    assert ok[1].warm
+    speed = ok[0].summary.speed
+    bad = two(ChainParameters(d0=20.0, max_gas_speed_m_s=0.5 * speed))
+    assert not bad[0].summary.valid and "implausible_speed" in bad[0].summary.flags
+    assert bad[0].summary.speed == pytest.approx(speed)  # kept for diagnosis, flagged
+    assert not bad[1].warm
+    with pytest.raises(ValueError, match="max_gas_speed_m_s"):
+        ChainParameters(max_gas_speed_m_s=0.0)
 
 
 @pytest.mark.parametrize(

@@ -91,6 +91,8 @@ def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneF
                   gas_temperature_k: float) -> FrameRate:
     """The stereo emission rate of one triple from the raw left frame at t1; a failure is a
     rate with its reason, never a lost result."""
+    if "implausible_speed" in res.summary.flags:
+        return FrameRate(None, (), "implausible gas speed (not a measurement)")
     try:
         return estimator.frame_rate(left_t1, flow=res.flow, velocity=res.velocity,
                                     depth=res.position[..., 2], valid=res.valid,

@@ -39,7 +39,7 @@ from processing.chain.region import Box, choose_region
 from processing.chain.result import SceneFlowResult, frame_interval
 from processing.chain.scale import gas_radiance, initial_scale
 from processing.chain.state import ChainState, Times, WarmStart, solver_options
-from processing.chain.summary import summarize_frame
+from processing.chain.summary import GasSummary, summarize_frame
 from processing.flow.brox import brox_optical_flow
 from processing.preprocess.depth_gate import apply_gate, out_of_band_motion
 from processing.preprocess.differential import (
@@ -127,13 +127,14 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, mask, box,
                                                             geometry, params, dt)
     clock.lap("velocity_quality")
-    summary = summarize_frame(velocity, valid, mask, c_usf(u_sf, mask, valid & u_sf_valid),
-                              tuple(flags))
+    summary, implausible = _summary(velocity, valid, mask, u_sf, u_sf_valid, flags, params)
     clock.lap("summary")
 
+    # An implausible triple's fields must not seed the next one (a warm start carried a
+    # d' of -69 px through ten triples, measured): it ends the warm run like a scene change.
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
-                  scene_change=cut, flow=flow, disparity=d, change=dd, mask=mask)
+                  scene_change=cut or implausible, flow=flow, disparity=d, change=dd, mask=mask)
     return SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
@@ -141,6 +142,20 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
         warm=warm is not None, region=None if box is None else box.bounds)
+
+
+def _summary(velocity: np.ndarray, valid: np.ndarray, mask: np.ndarray, u_sf: np.ndarray,
+             u_sf_valid: np.ndarray, flags: list[str], params: ChainParameters
+             ) -> tuple[GasSummary, bool]:
+    """The frame's summary (:func:`summarize_frame`, c_USF of Eq. 8) and whether its mean
+    speed exceeds ``params.max_gas_speed_m_s``; such a summary is invalid and flagged
+    ``implausible_speed`` (its numbers are kept for diagnosis)."""
+    summary = summarize_frame(velocity, valid, mask, c_usf(u_sf, mask, valid & u_sf_valid),
+                              tuple(flags))
+    if summary.speed is None or summary.speed <= params.max_gas_speed_m_s:
+        return summary, False
+    return dataclasses.replace(summary, valid=False,
+                               flags=(*summary.flags, "implausible_speed")), True
 
 
 @dataclass

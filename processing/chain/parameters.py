@@ -84,6 +84,12 @@ class ChainParameters:
         cold anyway, so that a wrong state does not live longer than that many triples
         (:func:`processing.chain.state.warm_start`); 0 never does. The default 30 (1 s at
         30 Hz and stride 1) costs about one cold start per second (+3 % of the chain).
+    max_gas_speed_m_s : float
+        A frame whose mean gas speed exceeds this (m/s) is not a measurement: its summary
+        is invalid and flagged ``implausible_speed``, and the next triple starts cold. Gas
+        dispersing in wind moves at the wind's speed (a few m/s; 30 m/s is a storm the
+        appliance does not measure in); faster means a wrong disparity, for example from
+        two frames of different moments paired.
     active_region : bool
         On a warm start, solve the flow and the disparities only inside the box around
         the active pixels and the previous gas mask (:mod:`processing.chain.region`);
@@ -122,6 +128,7 @@ class ChainParameters:
     scale_forgetting: float = 0.02
     warm_start: bool = True
     cold_every: int = 30
+    max_gas_speed_m_s: float = 30.0
     active_region: bool = False
     region_margin_px: int = 24
     region_max_fraction: float = 0.7
@@ -152,6 +159,9 @@ class ChainParameters:
                 or self.region_margin_px < 0:
             raise ValueError(f"region_margin_px must be an integer >= 0, "
                              f"got {self.region_margin_px!r}")
+        if not self.max_gas_speed_m_s > 0:
+            raise ValueError(f"max_gas_speed_m_s must be positive, "
+                             f"got {self.max_gas_speed_m_s!r}")
         if not 0 < self.region_max_fraction <= 1:
             raise ValueError(f"region_max_fraction must be in (0, 1], "
                              f"got {self.region_max_fraction!r}")

@@ -73,6 +73,9 @@ FLAGS: dict[str, str] = {
                     "weak",
     "object_motion_rejected": "moving image regions outside the gas depth band or without "
                               "stereo consistency (objects, not gas) were excluded",
+    "implausible_speed": "the mean gas speed exceeded max_gas_speed_m_s (a wrong disparity, "
+                         "e.g. from two frames of different moments paired): not a "
+                         "measurement, and the next triple starts cold",
     "scene_change": "the whole picture changed at once (camera bumped, flat-field shutter, "
                     "a jump in the scene): this triple started cold and its velocity is not "
                     "gas motion",
