@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.conftest import SMALL_SCENE
 from tests.mosquitto import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +87,7 @@ def shown_frame_age_s(text: str, t_shot: float) -> float | None:
     return t_shot - shown
 
 
-def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
+def test_operator_view_renders_in_chromium(tmp_path: Path, scene_cache: Path) -> None:
     from playwright.sync_api import sync_playwright
 
     assert Path(CHROMIUM).exists(), "install the Debian package chromium (tools/install.sh --dev)"
@@ -95,8 +96,8 @@ def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "appliance", "run", "--duration", "300",
            "--record-dir", str(tmp_path / "rec"), "--live", "serve",
            "--set", f"live.web_port={web}", "--set", f"live.grpc_port={grpc}",
-           "--set", "simulation.frames=24", "--set", "simulation.voxel_m=0.12",
-           "--set", f"simulation.cache_dir={tmp_path / 'cache'}", "--log-level", "WARNING"]
+           *(a for k, v in SMALL_SCENE for a in ("--set", f"{k}={v}")),
+           "--set", f"simulation.cache_dir={scene_cache}", "--log-level", "WARNING"]
     log_file = (tmp_path / "run.log").open("w")
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=log_file,
                             start_new_session=True)
@@ -119,7 +120,7 @@ def test_operator_view_renders_in_chromium(tmp_path: Path) -> None:
             deadline = time.monotonic() + 180
             drawn = False
             while time.monotonic() < deadline and proc.poll() is None:
-                time.sleep(5.0)
+                time.sleep(2.0)
                 page.screenshot(path=str(shot))
                 text = ocr(shot).lower()
                 img = np.asarray(_read_png(shot), np.float32)

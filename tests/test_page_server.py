@@ -160,8 +160,8 @@ def test_a_stalled_client_drops_for_itself_only(served) -> None:
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     # 12 MB of status messages, far more than the stalled socket's buffers take
-    big = ["x" * 4000]
-    for i in range(3000):
+    big = ["x" * 40_000]
+    for i in range(300):
         n = hub.stats().statuses
         hub.push(OperatorStatus(t_capture_ns=t0 + i, health=big))
         _wait(lambda n=n: hub.stats().statuses > n)
@@ -170,7 +170,7 @@ def test_a_stalled_client_drops_for_itself_only(served) -> None:
         _wait(lambda i=i: frames and frames[-1] == i)
     assert frames[-100:] == list(range(1, 101))
     stats = server.stats()
-    assert stats.client_drops > 1000 and stats.queue_depth <= 2  # the stalled one's, bounded
+    assert stats.client_drops > 150 and stats.queue_depth <= 2  # the stalled one's, bounded
     conn.close()
     stalled.close()
     _wait(lambda: server.stats().clients == 0)
