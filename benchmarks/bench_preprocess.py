@@ -33,7 +33,8 @@ import numpy as np
 
 from processing.preprocess.denoise import sobolev_denoise
 from processing.preprocess.differential import preprocess_camera
-from processing.preprocess.registration import estimate_shift, warp_translation
+from processing.preprocess.registration import estimate_shift
+from processing.preprocess.translation import warp_translation
 from processing.segmentation.segment import segment_gas
 
 

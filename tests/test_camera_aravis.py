@@ -27,6 +27,8 @@ from pathlib import Path
 
 import pytest
 
+from drivers.camera.gige_buffers import MAX_POP_DELAY_NS, arrival_mono_ns, frame_id_gap
+
 FAKE = "arv-fake-gv-camera-0.8"
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -56,16 +58,18 @@ def _netns_prefix() -> list[str] | None:
 
 
 def test_frame_id_gap_handles_16_bit_wrap_and_restart() -> None:
-    if _aravis_missing():
-        pytest.skip(_aravis_missing())
-    from drivers.camera.aravis import frame_id_gap
-
     assert frame_id_gap(None, 5) == 0
     assert frame_id_gap(5, 6) == 0
     assert frame_id_gap(5, 9) == 3
     assert frame_id_gap(65535, 1) == 0  # GigE Vision 1.x ids skip 0
     assert frame_id_gap(65534, 2) == 2
     assert frame_id_gap(40000, 3) == 0  # device restarted
+
+
+def test_arrival_time_moves_to_monotonic_clock_unless_the_wall_clock_stepped() -> None:
+    assert arrival_mono_ns(9_000, 50_000, 10_000) == 49_000  # arrived 1 us before the pop
+    assert arrival_mono_ns(11_000, 50_000, 10_000) == 50_000  # arrival after the pop: step
+    assert arrival_mono_ns(0, 50_000, 2 * MAX_POP_DELAY_NS) == 50_000  # implausibly old
 
 
 def _host_addresses() -> list[str]:

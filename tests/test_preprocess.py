@@ -13,7 +13,7 @@ from processing.preprocess.differential import (
     radiometric_correction,
 )
 from processing.preprocess.normalisation import DiffScaleTracker, normalise_difference
-from processing.preprocess.registration import warp_translation
+from processing.preprocess.translation import warp_translation
 
 
 def _scene(h: int = 96, w: int = 128, seed: int = 0) -> np.ndarray:

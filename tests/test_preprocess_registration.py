@@ -8,11 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from processing.preprocess.registration import (
-    estimate_shift,
-    register_to_reference,
-    warp_translation,
-)
+from processing.preprocess.registration import estimate_shift, register_to_reference
+from processing.preprocess.translation import warp_translation
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "ogi" / "gasvid" / "1238"
 

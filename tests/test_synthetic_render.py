@@ -305,7 +305,7 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
     # low-frequency residual with 2 x 2 rays, 1.5e-6 with 3 x 3).
     import cv2
 
-    from processing.preprocess.registration import warp_translation
+    from processing.preprocess.translation import warp_translation
     from processing.synthetic.cameras import PIXEL_SAMPLES, StereoRenderer, pixel_mean_background
     from processing.synthetic.imaging import background_radiance
     from processing.synthetic.presets import preset_no_release

@@ -184,7 +184,7 @@ def test_two_workers_sharing_shifts_give_identical_results_with_half_the_estimat
     left, right, times = _sequence(8)
     rng = np.random.default_rng(3)
     # sub-pixel camera jitter on both cameras (what registration removes)
-    from processing.preprocess.registration import warp_translation
+    from processing.preprocess.translation import warp_translation
     left = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))
             .astype(np.uint16) for f in left]
     right = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))

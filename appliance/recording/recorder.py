@@ -12,7 +12,7 @@ The writer thread owns the files (naming and the open file: :mod:`.files`):
 - Rotation by size (``rotate_mb``) and by time (``rotate_s``); every new file registers its
   schemas and channels again and carries the metadata records again.
 - Disk quota (``quota_gb``): after each rotation and at start, the oldest *closed* files of our
-  own naming pattern are deleted until the total (including the open file) fits.
+  own naming pattern are deleted until the total (including the open file) fits (:mod:`.quota`).
 - Every ``fsync_s`` the open chunk is closed and the file fsynced: a power cut loses at most
   that much.
 - A write error (a full disk, an I/O error) *pauses* recording: the file is finished if it
@@ -44,6 +44,7 @@ from appliance.recording.files import (
     new_path,
     unfinished_files,
 )
+from appliance.recording.quota import delete_oldest_over_quota
 from appliance.recording.recovery import recover_unfinished
 from appliance.recording.schemas import MessageSchema
 
@@ -386,23 +387,10 @@ class Recorder:
     def _enforce_quota(self) -> None:
         if self._rc.quota_gb is None:
             return
-        limit = self._rc.quota_gb * 1e9
-        files = closed_files(self._dir)
         open_size = self._file.size() if self._file is not None else 0
-        total = open_size + sum(p.stat().st_size for p in files)
-        while total > limit and files:
-            oldest = files.pop(0)
-            size = oldest.stat().st_size
-            try:
-                oldest.unlink()
-            except OSError as exc:
-                log.error("recorder: quota: cannot delete %s: %s", oldest.name, exc)
-                break
-            total -= size
-            with self._lock:
-                self._stats.files_deleted += 1
-            log.warning("quota %.3g GB: deleted oldest recording %s (%.1f MB)",
-                        self._rc.quota_gb, oldest.name, size / 1e6)
+        deleted = delete_oldest_over_quota(self._dir, self._rc.quota_gb, open_size)
+        with self._lock:
+            self._stats.files_deleted += deleted
 
 
 def _describe(exc: OSError) -> str:

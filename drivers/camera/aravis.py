@@ -5,16 +5,11 @@ the Debian package ``gir1.2-aravis-0.8`` and PyGObject in the virtualenv (the ``
 ``pygobject<3.51``, which builds against ``libgirepository1.0-dev libcairo2-dev pkg-config``);
 when they are missing the import fails with :class:`CameraBackendMissing` saying so.
 
-Per buffer Aravis gives the device timestamp (ns, converted from the camera's tick counter)
-and the frame (block) id; GigE Vision 1.x block ids are 16 bit and skip 0 when they wrap. A
-gap in the ids is reported as ``Frame.lost``; buffers Aravis could not complete (missing
-packets, timeouts) are dropped and counted as lost too.
-
-Arrival time: Aravis records the host wall-clock time of the frame's arrival in its stream
-thread (``get_system_timestamp``); we convert it to the monotonic timeline (``monotonic_now -
-(realtime_now - system_ts)``), which excludes the delay of our own thread waking up. If the
-wall clock steps (NTP), the conversion is implausible and we fall back to the monotonic time
-of the pop.
+Per buffer Aravis gives the device timestamp (ns, converted from the camera's tick counter),
+the frame (block) id and the host wall-clock time of its arrival; lost frames and the
+arrival time on the monotonic timeline follow from them (:mod:`drivers.camera.gige_buffers`).
+Buffers Aravis could not complete (missing packets, timeouts) are dropped and counted as lost
+too.
 
 Reconnect: when no buffer has completed for ``reconnect_after_s`` (or Aravis signals that
 control of the device was lost), the camera object is dropped and re-opened with the same
@@ -40,6 +35,7 @@ from drivers.camera.base import (
     CameraTimeout,
     Capture,
 )
+from drivers.camera.gige_buffers import arrival_mono_ns, frame_id_gap
 
 try:
     import gi
@@ -85,20 +81,6 @@ def _has(device: Aravis.Device, feature: str) -> bool:
         return bool(device.is_feature_available(feature))
     except GLib.Error:
         return False
-
-
-def frame_id_gap(previous: int | None, current: int) -> int:
-    """Frames missing between two device frame ids (16-bit GigE Vision ids wrap to 1).
-
-    A jump backwards that is not a wrap means the device restarted: nothing is counted.
-    """
-    if previous is None:
-        return 0
-    if current > previous:
-        return current - previous - 1
-    if previous >= 0xFF00 and current <= 0x00FF and previous <= 0xFFFF:
-        return (0xFFFF - previous) + (current - 1)
-    return 0
 
 
 class AravisCamera(Camera):
@@ -370,9 +352,7 @@ class AravisCamera(Camera):
         image = image.reshape(h, w).astype(self._dtype, copy=True)
         lost = frame_id_gap(self._last_frame_id, frame_id)
         self._last_frame_id = frame_id
-        sys_ts = int(buf.get_system_timestamp())
-        delay = real_ns - sys_ts
-        host_ns = mono_ns - delay if 0 <= delay < 1_000_000_000 else mono_ns
+        host_ns = arrival_mono_ns(int(buf.get_system_timestamp()), mono_ns, real_ns)
         device_ts = int(buf.get_timestamp())
         return Capture(
             image=image,

@@ -14,6 +14,8 @@ increment with red-black SOR (:mod:`processing.solvers.redblack`).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
@@ -70,7 +72,8 @@ def _compact_data_terms(
     coef : ndarray, shape (13, H+2, W2+2), float32
         Receives A12, R1, R2 (see :mod:`processing.solvers.redblack`).
     a11, a22 : ndarray, shape (H+2, W2+2), float32
-        Receive the data diagonals; :func:`redblack.finish_diagonals` adds smoothness.
+        Receive the data diagonals; :func:`processing.solvers.lagged.finish_diagonals` adds
+        the smoothness.
     """
     rows, w = iz.shape
     e2 = np.float32(eps * eps)
@@ -112,53 +115,25 @@ def _compact_data_terms(
             o2[x] = c12 * ru0[x] + c22 * rv0[x] - (d * gy * z + g * (hxy * rxz[x] + hyy * ryz[x]))
 
 
-@numba.njit(cache=True)
-def _lagged_iterations(
-    full: tuple[np.ndarray, ...],
-    u: np.ndarray,
-    v: np.ndarray,
-    ins: np.ndarray,
-    us: tuple[np.ndarray, np.ndarray],
-    vs: tuple[np.ndarray, np.ndarray],
-    u0: tuple[np.ndarray, np.ndarray],
-    v0: tuple[np.ndarray, np.ndarray],
-    coefs: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    a11: tuple[np.ndarray, np.ndarray],
-    a22: tuple[np.ndarray, np.ndarray],
-    psi: tuple[np.ndarray, np.ndarray],
-    s2: np.ndarray,
-    alpha: float,
-    beta: float,
-    eps: float,
-    n_inner: int,
-    n_sor: int,
-    omega: float,
-) -> None:
-    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (u, v) in place.
+class _FlowTerms(NamedTuple):
+    """Parameters of the data terms of Eq. 5 (selects them in the shared lagged loop)."""
 
-    Everything stays in compact red-black layout for the whole warp: the nine full-grid
-    inputs ``full`` (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid) are split once into
-    ``ins``, psi', edge weights and data terms are computed per colour, and the unknowns
-    are merged back only at the end. All compact arrays come from the level's
-    :class:`processing.solvers.variational.Workspace`.
-    """
-    w = u.shape[1]
-    lagged.begin_warp(full, ins, u, v, us, vs, u0, v0)
-    for _ in range(n_inner):
-        # One psi' for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
-        lagged.lagged_psi((us, vs), w, eps, s2, psi)
-        for c in range(2):
-            coef = coefs[c]
-            lagged.edge_weights(psi[c], psi[1 - c], masks[c], alpha, c, coef, redblack.W1)
-            coef[redblack.W2:redblack.W2 + 4] = coef[redblack.W1:redblack.W1 + 4]
-            _compact_data_terms(ins[0, c], ins[1, c], ins[2, c], ins[3, c], ins[4, c],
-                                ins[5, c], ins[6, c], ins[7, c], ins[8, c], us[c], vs[c],
-                                u0[c], v0[c], beta, eps, coef, a11[c], a22[c])
-            lagged.finish_diagonals(coef, a11[c], a22[c])
-        redblack.solve_sor(coefs[0], coefs[1], us[0], us[1], vs[0], vs[1], n_sor, omega)
-    redblack.merge_field(us[0], us[1], u)
-    redblack.merge_field(vs[0], vs[1], v)
+    beta: float
+
+
+@lagged.implement(lagged.data_terms, _FlowTerms)
+def _flow_data_terms(terms: _FlowTerms, ws: variational.Workspace, c: int, eps: float) -> None:
+    """Data terms of Eq. 5 at the pixels of colour ``c``: :func:`_compact_data_terms` on the
+    nine split inputs (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid)."""
+    ins = ws.inputs
+    _compact_data_terms(ins[0, c], ins[1, c], ins[2, c], ins[3, c], ins[4, c], ins[5, c],
+                        ins[6, c], ins[7, c], ins[8, c], ws.x1[c], ws.x2[c], ws.x1_0[c],
+                        ws.x2_0[c], terms.beta, eps, ws.coefs[c], ws.a11[c], ws.a22[c])
+
+
+@lagged.implement(lagged.after_solve, _FlowTerms)
+def _flow_after_solve(terms: _FlowTerms, ws: variational.Workspace) -> None:
+    """Nothing: the flow is the plain lagged solution of Eq. 5."""
 
 
 def _level_flow(
@@ -195,10 +170,10 @@ def _level_flow(
         ixx = 0.5 * (i1xx + i0xx)
         ixy = 0.5 * (i1xy + i0xy)
         iyy = 0.5 * (i1yy + i0yy)
-        ws = variational.workspace(i0.shape)
-        _lagged_iterations((iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid), u, v, ws.inputs,
-                           ws.x1, ws.x2, ws.x1_0, ws.x2_0, ws.coefs, ws.masks, ws.a11, ws.a22,
-                           ws.psi1, ws.s2, alpha, beta, eps, n_inner, n_sor, omega)
+        # One penaliser for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
+        lagged.lagged_iterations(_FlowTerms(beta), (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid),
+                                 u, v, variational.workspace(i0.shape), (alpha, alpha), True,
+                                 eps, n_inner, n_sor, omega)
 
 
 def brox_optical_flow(

@@ -43,11 +43,8 @@ import numpy as np
 from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
 from processing.preprocess.denoise import sobolev_denoise
 from processing.preprocess.normalisation import normalise_difference
-from processing.preprocess.registration import (
-    estimate_shift_checked,
-    warp_border_px,
-    warp_translation,
-)
+from processing.preprocess.registration import estimate_shift_checked
+from processing.preprocess.translation import warp_border_px, warp_translation
 from processing.validation import as_float_image, check_positive, check_same_shape
 
 
@@ -193,7 +190,7 @@ class PreprocessedTriple:
     def border_px(self) -> int:
         """Width of the border strip of ``raw0``/``raw1`` (and the diffs) that the
         registration's warps filled with mirrored values rather than measurements, px
-        (:func:`processing.preprocess.registration.warp_border_px` of t1's and t2's shifts)."""
+        (:func:`processing.preprocess.translation.warp_border_px` of t1's and t2's shifts)."""
         s01, s12 = self.shifts
         return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
 

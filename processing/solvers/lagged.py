@@ -7,13 +7,18 @@ smoothness terms and turn them into edge weights of the linear system that
 with :func:`processing.solvers.redblack.pack_system` costs about as much as ten SOR iterations
 (stride-2 scatter of 13 planes), so the solvers keep their unknowns and inputs compact for a
 whole warp and compute psi', edge weights and diagonals per colour here, with contiguous,
-vectorisable row loops.
+vectorisable row loops. :func:`lagged_iterations` is the inner loop of one warp for both
+solvers; each brings its own data terms (:func:`data_terms`, :func:`after_solve`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numba
 import numpy as np
+from numba.core import types
+from numba.extending import overload
 
 from processing.solvers import redblack
 from processing.solvers.redblack import (
@@ -28,6 +33,10 @@ from processing.solvers.redblack import (
     W2_RIGHT,
     W2_UP,
 )
+
+#: The level's :class:`processing.solvers.variational.Workspace` (a NamedTuple of compact
+#: arrays; that module builds on this one, hence no import).
+Workspace = tuple
 
 
 @numba.njit(cache=True)
@@ -210,26 +219,134 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None
 
 
 @numba.njit(cache=True)
-def begin_warp(
-    full: tuple[np.ndarray, ...],
-    ins: np.ndarray,
-    x1_full: np.ndarray,
-    x2_full: np.ndarray,
-    x1: tuple[np.ndarray, np.ndarray],
-    x2: tuple[np.ndarray, np.ndarray],
-    x1_0: tuple[np.ndarray, np.ndarray],
-    x2_0: tuple[np.ndarray, np.ndarray],
-) -> None:
+def begin_warp(full: tuple[np.ndarray, ...], x1_full: np.ndarray, x2_full: np.ndarray,
+               ws: Workspace) -> None:
     """Split a warp's full-grid inputs and both unknowns into compact form, once per warp.
 
-    ``full[k]`` goes to ``ins[k]`` (red, black); the unknowns to ``x1``, ``x2`` and their
-    values at the warp (for the increments of the linearised data terms) to ``x1_0``,
-    ``x2_0``.
+    ``full[k]`` goes to ``ws.inputs[k]`` (red, black); the unknowns to ``ws.x1``, ``ws.x2``
+    and their values at the warp (for the increments of the linearised data terms) to
+    ``ws.x1_0``, ``ws.x2_0``.
     """
     for k in range(len(full)):
-        redblack.split_field(full[k], ins[k, 0], ins[k, 1])
-    redblack.split_field(x1_full, x1[0], x1[1])
-    redblack.split_field(x2_full, x2[0], x2[1])
+        redblack.split_field(full[k], ws.inputs[k, 0], ws.inputs[k, 1])
+    redblack.split_field(x1_full, ws.x1[0], ws.x1[1])
+    redblack.split_field(x2_full, ws.x2[0], ws.x2[1])
     for c in range(2):
-        x1_0[c][:] = x1[c]
-        x2_0[c][:] = x2[c]
+        ws.x1_0[c][:] = ws.x1[c]
+        ws.x2_0[c][:] = ws.x2[c]
+
+
+# The two problem-specific steps of :func:`lagged_iterations`. Each solver implements them
+# for the type of its ``terms`` (a NamedTuple of its data-term parameters, :func:`implement`)
+# and numba picks the implementation when it compiles the skeleton for that type. Not a
+# kernel argument or a closure over one: numba keys the on-disk cache of such a function by
+# the kernel object, which is new in every process, so the skeleton compiled again at every
+# start (measured with numba 0.68: a cache miss and a new cache file per process).
+
+
+def data_terms(terms: tuple, ws: Workspace, colour: int, eps: float) -> None:
+    """Linearised data terms at the pixels of ``colour``, with lagged psi' weights.
+
+    Reads ``ws.inputs[:, colour]``, the unknowns ``ws.x1``, ``ws.x2`` and their values at
+    the warp ``ws.x1_0``, ``ws.x2_0``; writes the data diagonals ``ws.a11[colour]``,
+    ``ws.a22[colour]`` and the planes A12, R1, R2 of ``ws.coefs[colour]``
+    (:mod:`processing.solvers.redblack`). Compiled code only; see :func:`implement`.
+    """
+    raise TypeError(f"data_terms of {type(terms).__name__} run in compiled code only")
+
+
+def after_solve(terms: tuple, ws: Workspace) -> None:
+    """A problem's own update of ``ws.x1``, ``ws.x2`` after each SOR solve (or none).
+
+    Compiled code only; see :func:`implement`.
+    """
+    raise TypeError(f"after_solve of {type(terms).__name__} runs in compiled code only")
+
+
+def implement(hook: Callable[..., None], terms_type: type) -> Callable[[Callable], Callable]:
+    """Decorator: the decorated function is ``hook`` for terms of type ``terms_type``.
+
+    ``hook`` is :func:`data_terms` or :func:`after_solve`; the decorated function has the
+    hook's parameters and is compiled by numba where :func:`lagged_iterations` calls it.
+    """
+    def register(impl: Callable) -> Callable:
+        def select(terms: types.Type, *args: types.Type) -> Callable | None:
+            if isinstance(terms, types.BaseNamedTuple) and terms.instance_class is terms_type:
+                return impl
+            return None
+
+        overload(hook, strict=False)(select)
+        return impl
+
+    return register
+
+
+@numba.njit(cache=True)
+def lagged_iterations(
+    terms: tuple,
+    full: tuple[np.ndarray, ...],
+    x1_full: np.ndarray,
+    x2_full: np.ndarray,
+    ws: Workspace,
+    weights: tuple[float, float],
+    joint: bool,
+    eps: float,
+    n_inner: int,
+    n_sor: int,
+    omega: float,
+) -> None:
+    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; x1, x2 in place.
+
+    Everything stays in compact red-black layout for the whole warp: the full-grid
+    data-term inputs ``full`` are split once into ``ws.inputs``, psi', edge weights and
+    data terms are computed per colour, and the unknowns are merged back only at the end.
+
+    Parameters
+    ----------
+    terms : NamedTuple
+        The problem's data-term parameters; its type selects the :func:`data_terms` and
+        :func:`after_solve` of that problem.
+    full : tuple of ndarray, shape (H, W), float32
+        The per-pixel inputs of the data terms at this warp (at most
+        :data:`processing.solvers.variational.N_INPUTS`).
+    x1_full, x2_full : ndarray, shape (H, W), float32
+        The two unknowns, refined in place.
+    ws : Workspace
+        The level's compact arrays (:class:`processing.solvers.variational.Workspace`).
+    weights : (float, float)
+        Smoothness weights of the two unknowns (alpha, alpha for Eq. 5; gamma1, gamma2
+        for Eq. 6).
+    joint : bool
+        True: one penaliser psi(|grad x1|^2 + |grad x2|^2) for both unknowns (Eq. 5);
+        False: one per unknown, psi(|grad x1|^2) and psi(|grad x2|^2) (Eq. 6).
+    eps : float
+        Charbonnier epsilon.
+    n_inner, n_sor : int
+        Lagged fixed-point iterations, SOR iterations per fixed-point iteration.
+    omega : float
+        SOR relaxation factor in (0, 2).
+    """
+    w = x1_full.shape[1]
+    begin_warp(full, x1_full, x2_full, ws)
+    for _ in range(n_inner):
+        if joint:
+            lagged_psi((ws.x1, ws.x2), w, eps, ws.s2, ws.psi1)
+        else:
+            lagged_psi((ws.x1,), w, eps, ws.s2, ws.psi1)
+            lagged_psi((ws.x2,), w, eps, ws.s2, ws.psi2)
+        for c in range(2):
+            coef = ws.coefs[c]
+            edge_weights(ws.psi1[c], ws.psi1[1 - c], ws.masks[c], weights[0], c, coef,
+                         redblack.W1)
+            if joint:
+                coef[redblack.W2:redblack.W2 + 4] = coef[redblack.W1:redblack.W1 + 4]
+            else:
+                edge_weights(ws.psi2[c], ws.psi2[1 - c], ws.masks[c], weights[1], c, coef,
+                             redblack.W2)
+            data_terms(terms, ws, c, eps)
+            finish_diagonals(coef, ws.a11[c], ws.a22[c])
+        redblack.solve_sor(ws.coefs[0], ws.coefs[1], ws.x1[0], ws.x1[1], ws.x2[0], ws.x2[1],
+                           n_sor, omega)
+        after_solve(terms, ws)
+    redblack.merge_field(ws.x1[0], ws.x1[1], x1_full)
+    redblack.merge_field(ws.x2[0], ws.x2[1], x2_full)

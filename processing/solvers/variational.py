@@ -21,7 +21,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -34,13 +34,17 @@ LevelSolver = Callable[[int, Fields], Fields]
 #: Workspaces kept per thread (a pyramid of one image size has about 11 levels).
 MAX_WORKSPACES = 48
 
+#: Per-pixel data-term inputs of the larger of the two solvers (the flow: 9).
+N_INPUTS = 9
 
-@dataclass(frozen=True)
-class Workspace:
+
+class Workspace(NamedTuple):
     """Preallocated compact red-black arrays for one level size (H, W).
 
-    Every compact array has shape (H+2, W2+2), W2 = ceil(W/2) (one-pixel halo); pairs are
-    (red, black). Contents are scratch: each solver call overwrites what it reads.
+    A NamedTuple, so that compiled code takes it as one argument
+    (:func:`processing.solvers.lagged.lagged_iterations`). Every compact array has shape
+    (H+2, W2+2), W2 = ceil(W/2) (one-pixel halo); pairs are (red, black). Contents are
+    scratch: each solver call overwrites what it reads.
 
     Attributes
     ----------
@@ -72,9 +76,6 @@ class Workspace:
     psi2: tuple[np.ndarray, np.ndarray]
     s2: np.ndarray
 
-    #: Per-pixel inputs of the larger of the two solvers (the flow: 9).
-    N_INPUTS = 9
-
     @classmethod
     def allocate(cls, height: int, width: int) -> Workspace:
         """Allocate (zeroed) the arrays for an (H, W) level."""
@@ -85,7 +86,7 @@ class Workspace:
 
         return cls(
             shape=(height, width),
-            inputs=np.zeros((cls.N_INPUTS, 2, *cshape), np.float32),
+            inputs=np.zeros((N_INPUTS, 2, *cshape), np.float32),
             x1=pair(), x2=pair(), x1_0=pair(), x2_0=pair(),
             coefs=redblack.empty_system(height, width),
             masks=lagged.border_masks(height, width),

@@ -33,8 +33,9 @@ go straight into d' and hence into V_Z (Eq. 4).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import cv2
-import numba
 import numpy as np
 
 from processing.solvers import derivatives, lagged, pyramid, redblack, variational
@@ -49,62 +50,31 @@ from processing.validation import (
 )
 
 
-@numba.njit(cache=True)
-def _lagged_iterations(
-    full: tuple[np.ndarray, ...],
-    d: np.ndarray,
-    dp: np.ndarray,
-    ins: np.ndarray,
-    ds: tuple[np.ndarray, np.ndarray],
-    ps: tuple[np.ndarray, np.ndarray],
-    d0: tuple[np.ndarray, np.ndarray],
-    dp0: tuple[np.ndarray, np.ndarray],
-    coefs: tuple[np.ndarray, np.ndarray],
-    masks: tuple[np.ndarray, np.ndarray],
-    a11: tuple[np.ndarray, np.ndarray],
-    a22: tuple[np.ndarray, np.ndarray],
-    psi_d: tuple[np.ndarray, np.ndarray],
-    psi_p: tuple[np.ndarray, np.ndarray],
-    s2: np.ndarray,
-    gamma1: float,
-    gamma2: float,
-    eps: float,
-    n_inner: int,
-    n_sor: int,
-    omega: float,
-    constant_mode: bool,
-    w3: float,
-) -> None:
-    """Inner fixed-point iterations of one warp: lag psi', solve by SOR; (d, dp) in place.
+class _DisparityTerms(NamedTuple):
+    """Parameters of the data terms of Eq. 6 (select them in the shared lagged loop)."""
 
-    As for the flow (:func:`processing.flow.brox._lagged_iterations`), everything stays
-    in compact red-black layout for the whole warp: the eight full-grid inputs ``full``
-    (e1, e3, e4, g0, g1, m1, m3, m4) are split once into ``ins`` (the data-term kernel is
-    purely per pixel, so it runs on compact arrays unchanged), psi', edge weights and data
-    terms are computed per colour, and the unknowns are merged back only at the end. All
-    compact arrays come from the level's :class:`processing.solvers.variational.Workspace`.
-    """
-    w = d.shape[1]
-    lagged.begin_warp(full, ins, d, dp, ds, ps, d0, dp0)
-    for _ in range(n_inner):
-        # Eq. 6 has one penaliser per field: psi(|grad d|^2) and psi(|grad d'|^2), each
-        # with its own weight, so the two unknowns diffuse with different edge weights.
-        lagged.lagged_psi((ds,), w, eps, s2, psi_d)
-        lagged.lagged_psi((ps,), w, eps, s2, psi_p)
-        for c in range(2):
-            coef = coefs[c]
-            lagged.edge_weights(psi_d[c], psi_d[1 - c], masks[c], gamma1, c, coef, redblack.W1)
-            lagged.edge_weights(psi_p[c], psi_p[1 - c], masks[c], gamma2, c, coef, redblack.W2)
-            disparity_terms.data_terms(
-                ins[0, c], ins[1, c], ins[2, c], ins[3, c], ins[4, c], ins[5, c], ins[6, c],
-                ins[7, c], ds[c], ps[c], d0[c], dp0[c], eps, w3, a11[c], coef[redblack.A12],
-                a22[c], coef[redblack.R1], coef[redblack.R2])
-            lagged.finish_diagonals(coef, a11[c], a22[c])
-        redblack.solve_sor(coefs[0], coefs[1], ds[0], ds[1], ps[0], ps[1], n_sor, omega)
-        if constant_mode:
-            constant_mode_step(coefs, a11, a22, ds, ps)
-    redblack.merge_field(ds[0], ds[1], d)
-    redblack.merge_field(ps[0], ps[1], dp)
+    right_temporal_weight: float
+    constant_mode: bool
+
+
+@lagged.implement(lagged.data_terms, _DisparityTerms)
+def _disparity_data_terms(terms: _DisparityTerms, ws: variational.Workspace, c: int,
+                          eps: float) -> None:
+    """Data terms E1, E3, E4 of Eq. 6 at the pixels of colour ``c`` on the eight split
+    inputs (e1, e3, e4, g0, g1, m1, m3, m4); the kernel is purely per pixel, so it runs on
+    compact arrays unchanged (:func:`processing.stereo.terms.data_terms`)."""
+    ins, coef = ws.inputs, ws.coefs[c]
+    disparity_terms.data_terms(
+        ins[0, c], ins[1, c], ins[2, c], ins[3, c], ins[4, c], ins[5, c], ins[6, c], ins[7, c],
+        ws.x1[c], ws.x2[c], ws.x1_0[c], ws.x2_0[c], eps, terms.right_temporal_weight,
+        ws.a11[c], coef[redblack.A12], ws.a22[c], coef[redblack.R1], coef[redblack.R2])
+
+
+@lagged.implement(lagged.after_solve, _DisparityTerms)
+def _disparity_after_solve(terms: _DisparityTerms, ws: variational.Workspace) -> None:
+    """The constant-mode step of d and d' (:func:`constant_mode_step`) when enabled."""
+    if terms.constant_mode:
+        constant_mode_step(ws.coefs, ws.a11, ws.a22, ws.x1, ws.x2)
 
 
 def _level_disparity(
@@ -152,11 +122,12 @@ def _level_disparity(
                                        mx1, fy, e1, e3, e4, g0, g1, m1, m3, m4)
         if usable is not None:
             disparity_terms.drop_blanked_terms(usable, yy, (fx, fy), mx0, mx1, (m1, m3, m4))
-        ws = variational.workspace(il0.shape)
-        _lagged_iterations((e1, e3, e4, g0, g1, m1, m3, m4), d, dp, ws.inputs, ws.x1, ws.x2,
-                           ws.x1_0, ws.x2_0, ws.coefs, ws.masks, ws.a11, ws.a22, ws.psi1,
-                           ws.psi2, ws.s2, gamma1, gamma2, eps, n_inner, n_sor, omega,
-                           constant_mode, right_temporal_weight)
+        # Eq. 6 has one penaliser per field, psi(|grad d|^2) and psi(|grad d'|^2), each with
+        # its own weight, so the two unknowns diffuse with different edge weights.
+        lagged.lagged_iterations(_DisparityTerms(right_temporal_weight, constant_mode),
+                                 (e1, e3, e4, g0, g1, m1, m3, m4), d, dp,
+                                 variational.workspace(il0.shape), (gamma1, gamma2), False, eps,
+                                 n_inner, n_sor, omega)
 
 
 def joint_disparity(
