@@ -130,8 +130,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     summary, implausible = _summary(velocity, valid, mask, u_sf, u_sf_valid, flags, params)
     clock.lap("summary")
 
-    # An implausible triple's fields must not seed the next one (a warm start carried a
-    # d' of -69 px through ten triples, measured): it ends the warm run like a scene change.
+    # An implausible triple must not seed the next (a warm d' of -69 px lived ten triples).
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
                   scene_change=cut or implausible, flow=flow, disparity=d, change=dd, mask=mask)
@@ -147,9 +146,8 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
 def _summary(velocity: np.ndarray, valid: np.ndarray, mask: np.ndarray, u_sf: np.ndarray,
              u_sf_valid: np.ndarray, flags: list[str], params: ChainParameters
              ) -> tuple[GasSummary, bool]:
-    """The frame's summary (:func:`summarize_frame`, c_USF of Eq. 8) and whether its mean
-    speed exceeds ``params.max_gas_speed_m_s``; such a summary is invalid and flagged
-    ``implausible_speed`` (its numbers are kept for diagnosis)."""
+    """The frame's summary (c_USF: Eq. 8) and whether its mean speed exceeds
+    ``params.max_gas_speed_m_s`` (then invalid, flagged ``implausible_speed``)."""
     summary = summarize_frame(velocity, valid, mask, c_usf(u_sf, mask, valid & u_sf_valid),
                               tuple(flags))
     if summary.speed is None or summary.speed <= params.max_gas_speed_m_s:
