@@ -106,6 +106,11 @@ def test_right_camera_lost_for_40_s_and_back(scene_cache: Path, tmp_path: Path) 
         single_before = c.single_results
         wait_for(app, lambda: c.single_results >= single_before + 10,
                  "single-camera results during the outage", 120)
+        # The MQTT status takes the health line at its own interval: wait for it (bounded)
+        # rather than race it (ten single-camera results can come within 0.3 s).
+        wait_for(app, lambda: any(w.startswith("DEGRADED: right camera lost")
+                                  for w in app.monitor.status().health),
+                 "the MQTT status to say degraded", 120)
         snap = app.health.snapshot()
         seen["snapshot"] = snap
         seen["status"] = status_line(snap)
