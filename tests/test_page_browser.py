@@ -71,7 +71,7 @@ SAMPLE_JS = """() => {
           state: document.querySelector('[data-testid="leak-state"]').textContent,
           age: document.querySelector('[data-testid="frame-age"]').textContent,
           capture_ns: img.dataset.captureNs || null, seq: img.dataset.seq || null,
-          result_ns: img.dataset.resultNs || null};
+          result_ns: img.dataset.resultNs || null, overlay_ns: img.dataset.overlayNs || null};
 }"""
 
 
@@ -256,10 +256,16 @@ def test_frame_age_over_30_s(page_run: dict) -> None:
           f"{(seqs[-1] - seqs[0]) / span:.1f} pictures/s shown; {100 * kept_up:.0f} % of "
           f"triples processed")
     assert statistics.median(page) <= 0.5
-    if kept_up < 0.9:
-        pytest.skip(f"the absolute frame age needs a machine that keeps up: only "
-                    f"{100 * kept_up:.0f} % of triples processed (the chain's latency is "
-                    f"most of the age); the page's own share was checked above")
+    # The gas on the picture is the newest processed result's, older than the picture by
+    # the chain's latency (the page says by how much).
+    lags = [(int(s["js"]["capture_ns"]) - int(s["js"]["overlay_ns"])) / 1e9
+            for s in shown if s["js"]["overlay_ns"]]
+    print(f"gas overlay on {len(lags)} of {len(shown)} samples, older than the picture by "
+          f"median {statistics.median(lags) if lags else float('nan'):.2f} s")
+    assert len(lags) >= len(shown) // 2  # the release is on from the start
+    assert all(0 <= lag <= 3.0 for lag in lags), lags
+    # The picture is the camera's newest frame: its age does not wait for the chain, however
+    # few triples this machine processes beside the browser.
     assert statistics.median(ages) <= 1.0
     assert max(ages) <= 2.0
     assert (seqs[-1] - seqs[0]) >= 2 * span  # at least 2 pictures a second

@@ -51,7 +51,10 @@ class LiveFrame:
         (H, W) raw left frame (counts), the operator's IR picture.
     raw_capture_ns
         Capture time of ``raw_left``, UNIX ns (the triple's first frame; ``t_capture_ns`` is
-        its middle one): what the operator's page counts the picture's age from.
+        its middle one).
+    camera
+        The camera of ``raw_left`` and of the image coordinates: "left", or the surviving
+        camera of a single-camera result.
     """
 
     frame: int
@@ -72,6 +75,7 @@ class LiveFrame:
     pixels: np.ndarray | None = None
     raw_left: np.ndarray | None = None
     raw_capture_ns: int | None = None
+    camera: str = "left"
 
     @property
     def has_pictures(self) -> bool:

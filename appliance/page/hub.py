@@ -2,10 +2,21 @@
 
 Producers (the publisher in the results thread, the leak monitor) call :meth:`PageHub.push`
 with the same items as the Rerun view (:class:`~appliance.live.items.LiveFrame`,
-:class:`~appliance.live.status.OperatorStatus`); it returns at once. The newest frame and
-the newest status each wait in a slot of their own (an older one not yet encoded is
-replaced and counted), so a busy machine shows fewer pictures, never older ones. The
-hub's thread draws the operator's picture (:func:`appliance.live.colour.operator_bgr`),
+:class:`~appliance.live.status.OperatorStatus`); the pairing thread calls
+:meth:`PageHub.push_camera` with the camera's newest frame. Each returns at once.
+
+The picture is the camera's newest frame, not the processed triple's: the chain's latency
+(one triple at a time, longer on a loaded box) would otherwise be most of what the operator
+waits for, and a box that processes a third of its triples would show pictures a second or
+more old. The gas overlay on it is the newest processed result's, and the page states how
+much older than the picture that result is (``overlay_capture_ns``); an overlay more than
+:data:`OVERLAY_MAX_AGE_S` older than the picture, or of the other camera, is not drawn. Without
+a camera feed (no :meth:`PageHub.push_camera` yet) the processed results' own frames are the
+pictures.
+
+The newest picture and the newest status each wait in a slot of their own (an older one not
+yet encoded is replaced and counted), so a busy machine shows fewer pictures, never older
+ones. The hub's thread draws the operator's picture (:func:`appliance.live.colour.operator_bgr`),
 encodes it as JPEG, keeps the last :data:`FRAMES_KEPT` of them for ``/frame/<seq>.jpg`` and
 hands each frame notice and status to the server's broadcast callback, which puts them on
 every client's own queue (:mod:`appliance.page.server`).
@@ -29,7 +40,8 @@ from appliance.live.colour import encode_jpeg, operator_arrows, operator_bgr
 from appliance.live.items import LiveFrame
 from appliance.live.status import OperatorStatus
 
-__all__ = ["FRAMES_KEPT", "EncodedFrame", "HubStats", "PageHub", "json_text"]
+__all__ = ["FRAMES_KEPT", "OVERLAY_MAX_AGE_S", "EncodedFrame", "HubStats", "PageHub",
+           "json_text"]
 
 log = logging.getLogger("ogiflow.page")
 
@@ -38,6 +50,10 @@ log = logging.getLogger("ogiflow.page")
 FRAMES_KEPT = 8
 #: Velocity arrows drawn on the page's picture (as on the Rerun operator tab).
 PAGE_ARROWS = 100
+
+#: A gas overlay older than this (s, before the picture's capture) is not drawn on it: the
+#: plume has moved on, and the leak state in words is what holds then.
+OVERLAY_MAX_AGE_S = 3.0
 
 #: ``broadcast(kind, json_text)``: called from the hub's thread for every new message.
 Broadcast = Callable[[str, str], None]
@@ -73,15 +89,22 @@ class EncodedFrame:
     seq : int
         Its number (1, 2, ...), the name of ``/frame/<seq>.jpg``.
     frame : int
-        Pair index of the result it shows.
+        The camera's frame number (camera pictures) or the pair index of the processed
+        result (without a camera feed).
     t_capture_ns : int
         Capture time of the picture's frame, UNIX ns (what the page's frame age counts from).
     jpeg : bytes
     t_result_ns : int
-        When its processed result reached the page (the appliance's clock), UNIX ns: the
-        age at that moment is the processing's share, the rest is the page's.
+        When the picture's frame reached the page (the appliance's clock), UNIX ns: the age
+        at that moment is the acquisition's (or, without a camera feed, the processing's)
+        share, the rest is the page's.
     width, height : int
         Picture size, px (the source marker's coordinates are in these pixels).
+    camera : str
+        Which camera took it ("left", or the survivor while one camera is lost).
+    overlay_capture_ns : int or None
+        Capture time of the triple whose gas overlay is drawn, UNIX ns; None: no overlay
+        (none yet, older than :data:`OVERLAY_MAX_AGE_S`, or of the other camera).
     """
 
     seq: int
@@ -91,13 +114,28 @@ class EncodedFrame:
     t_result_ns: int
     width: int
     height: int
+    camera: str = "left"
+    overlay_capture_ns: int | None = None
 
     def notice(self) -> dict[str, Any]:
         """The ``frame`` message (no picture: the page fetches ``url``)."""
         return {"seq": self.seq, "frame": self.frame, "t_capture_ns": self.t_capture_ns,
-                "t_result_ns": self.t_result_ns,
+                "t_result_ns": self.t_result_ns, "camera": self.camera,
+                "overlay_capture_ns": self.overlay_capture_ns,
                 "width": self.width, "height": self.height, "url": f"/frame/{self.seq}.jpg",
                 "bytes": len(self.jpeg)}
+
+
+@dataclass(frozen=True)
+class CameraPicture:
+    """A camera's frame waiting to be drawn: its own copy of the image (H, W) counts, the
+    camera, its frame number, its capture time and when it reached the hub (UNIX ns)."""
+
+    image: np.ndarray
+    camera: str
+    frame: int
+    t_capture_ns: int
+    t_received_ns: int
 
 
 @dataclass
@@ -108,6 +146,9 @@ class HubStats:
     #: Pictures replaced in the slot before the hub's thread encoded them.
     frames_replaced: int = 0
     frames_encoded: int = 0
+    #: Camera frames taken as pictures, and pictures drawn without a gas overlay.
+    camera_frames: int = 0
+    without_overlay: int = 0
     statuses: int = 0
     errors: int = 0
 
@@ -132,8 +173,12 @@ class PageHub:
         self.clock = clock
         self._period_ns = int(1e9 / max_image_hz)
         self._cond = threading.Condition()
-        self._frame: LiveFrame | None = None
+        self._frame: LiveFrame | CameraPicture | None = None
         self._frame_t_ns = 0
+        #: The newest processed result with a gas mask: drawn over camera pictures.
+        self._overlay: LiveFrame | None = None
+        self._overlay_due_ns = 0
+        self._camera_fed = False
         self._status: OperatorStatus | None = None
         self._frames: collections.OrderedDict[int, EncodedFrame] = collections.OrderedDict()
         self._status_dict: dict[str, Any] | None = None
@@ -150,7 +195,9 @@ class PageHub:
         """Take a frame with a picture (when one is due) or a status; never waits.
 
         Frames without the raw left picture (most results) and other items are not taken
-        (False): the page's text comes from the status, not from every result.
+        (False): the page's text comes from the status, not from every result. Once cameras
+        feed the hub (:meth:`push_camera`), a frame's gas mask becomes the overlay of the
+        next camera pictures instead of a picture of its own.
         """
         if isinstance(item, OperatorStatus):
             with self._cond:
@@ -161,6 +208,11 @@ class PageHub:
             return False
         now = time.monotonic_ns()
         with self._cond:
+            if item.gas_mask is not None:
+                self._overlay = item
+                self._overlay_due_ns = now + self._period_ns
+            if self._camera_fed:
+                return item.gas_mask is not None
             if self._thread is None or now - self._last_picture_ns < self._period_ns:
                 return False
             self._last_picture_ns = now
@@ -171,11 +223,48 @@ class PageHub:
             self._cond.notify()
         return True
 
-    def wants_pictures(self) -> bool:
-        """Whether a picture is due (the daemon then asks the workers for full fields)."""
+    def push_camera(self, camera: str, image: np.ndarray, frame: int,
+                    t_capture_ns: int) -> bool:
+        """Take a camera's newest frame as the next picture when one is due; never waits.
+
+        Parameters
+        ----------
+        camera : str
+            "left", or the surviving camera while the other is lost.
+        image : ndarray, shape (H, W)
+            Raw counts; copied when taken (the camera reuses its buffers).
+        frame : int
+            The camera's frame number.
+        t_capture_ns : int
+            Capture time, UNIX ns (the appliance's clock).
+        """
+        now = time.monotonic_ns()
         with self._cond:
-            return (self._thread is not None and self._frame is None
-                    and time.monotonic_ns() - self._last_picture_ns >= self._period_ns)
+            if self._thread is None or now - self._last_picture_ns < self._period_ns:
+                return False
+            self._last_picture_ns = now
+            self._camera_fed = True
+        picture = CameraPicture(np.array(image, copy=True), camera, int(frame),
+                                int(t_capture_ns), self.clock())
+        with self._cond:
+            self._stats.frames_pushed += 1
+            self._stats.camera_frames += 1
+            self._stats.frames_replaced += self._frame is not None
+            self._frame = picture
+            self._frame_t_ns = picture.t_received_ns
+            self._cond.notify()
+        return True
+
+    def wants_pictures(self) -> bool:
+        """Whether a picture (with a camera feed: a gas overlay) is due; the daemon then
+        asks the workers for full fields."""
+        with self._cond:
+            now = time.monotonic_ns()
+            if self._thread is None:
+                return False
+            if self._camera_fed:
+                return now >= self._overlay_due_ns
+            return self._frame is None and now - self._last_picture_ns >= self._period_ns
 
     # ------------------------------------------------------------------ readers
 
@@ -252,17 +341,28 @@ class PageHub:
             self._stats.statuses += 1
         self._send("status", d)
 
-    def _publish_frame(self, f: LiveFrame, t_result_ns: int) -> None:
-        assert f.raw_left is not None
-        raw = np.asarray(f.raw_left)
-        bgr = operator_bgr(raw, f.gas_mask, operator_arrows(f.pixels, f.velocity3d,
-                                                            PAGE_ARROWS))
+    def _publish_frame(self, f: LiveFrame | CameraPicture, t_result_ns: int) -> None:
+        if isinstance(f, CameraPicture):
+            with self._cond:
+                overlay = self._overlay
+            raw, camera, t, number = f.image, f.camera, f.t_capture_ns, f.frame
+            overlay = _overlay_for(overlay, camera, raw.shape, t)
+        else:
+            assert f.raw_left is not None
+            raw, camera, overlay, number = np.asarray(f.raw_left), f.camera, f, int(f.frame)
+            t = f.raw_capture_ns if f.raw_capture_ns is not None else f.t_capture_ns
+        if overlay is None:
+            bgr = operator_bgr(raw, None, None)
+        else:
+            bgr = operator_bgr(raw, overlay.gas_mask,
+                               operator_arrows(overlay.pixels, overlay.velocity3d, PAGE_ARROWS))
         jpeg = encode_jpeg(bgr, self.jpeg_quality)
         with self._cond:
             self._seq += 1
-            t = f.raw_capture_ns if f.raw_capture_ns is not None else f.t_capture_ns
-            enc = EncodedFrame(self._seq, int(f.frame), int(t), jpeg, int(t_result_ns),
-                               int(raw.shape[1]), int(raw.shape[0]))
+            enc = EncodedFrame(self._seq, number, int(t), jpeg, int(t_result_ns),
+                               int(raw.shape[1]), int(raw.shape[0]), camera,
+                               None if overlay is None else _capture_ns(overlay))
+            self._stats.without_overlay += overlay is None
             self._frames[enc.seq] = enc
             while len(self._frames) > FRAMES_KEPT:
                 self._frames.popitem(last=False)
@@ -272,3 +372,21 @@ class PageHub:
     def _send(self, kind: str, payload: dict[str, Any]) -> None:
         if self.broadcast is not None:
             self.broadcast(kind, json_text({**payload, "sent_ns": self.clock()}))
+
+
+def _capture_ns(f: LiveFrame) -> int:
+    """Capture time of a processed result's picture (its triple's first frame), UNIX ns."""
+    return int(f.raw_capture_ns if f.raw_capture_ns is not None else f.t_capture_ns)
+
+
+def _overlay_for(overlay: LiveFrame | None, camera: str, shape: tuple[int, ...],
+                 t_capture_ns: int) -> LiveFrame | None:
+    """The result whose gas is drawn on a camera picture, or None: none yet, of the other
+    camera or another size, or older than :data:`OVERLAY_MAX_AGE_S` before the picture."""
+    if overlay is None or overlay.gas_mask is None or overlay.camera != camera:
+        return None
+    if overlay.gas_mask.shape != shape[:2]:
+        return None
+    if t_capture_ns - _capture_ns(overlay) > OVERLAY_MAX_AGE_S * 1e9:
+        return None
+    return overlay

@@ -98,7 +98,7 @@ class Acquisition:
     def __init__(self, cfg: Config, counters: Any, health: Any, stop_event: threading.Event,
                  wall_ns: Callable[[int], int], site: SimulatedSite, *, recorder: Any,
                  publisher: Any, ring: Any, watchdog: Any,
-                 watch: CameraWatch | None = None) -> None:
+                 watch: CameraWatch | None = None, pictures: Any = None) -> None:
         self.cfg = cfg
         self.counters = counters
         self.health = health
@@ -109,6 +109,8 @@ class Acquisition:
         self.publisher = publisher
         self.ring = ring
         self.watchdog = watchdog
+        #: The operator page's hub (``push_camera``, never waits), or None.
+        self.pictures = pictures
         self._last_frame_id: dict[str, int | None] = {s: None for s in SIDES}
         self.anemometer: Any = None
         #: multiprocessing.Value the workers read the gas temperature from (K), or None.
@@ -262,6 +264,8 @@ class Acquisition:
         self.counters.pairs += 1
         self._remember_frame_id(index, left.device_frame_id)
         self.publisher.record_pair(index, p)
+        if self.pictures is not None:
+            self.pictures.push_camera("left", left.image, left.seq, self.wall_ns(p.left_ns))
 
     def _write_single(self, index: int, side: str, frame: Any, t_ns: int) -> None:
         """One camera's frame alone into the ring (its capture time ``t_ns`` in both time
@@ -273,6 +277,8 @@ class Acquisition:
                         t_left_mono_ns=t_ns, t_right_mono_ns=t_ns, t_wall_ns=self.wall_ns(t_ns))
         self.counters.single_frames += 1
         self._remember_frame_id(index, frame.device_frame_id if side == "left" else None)
+        if self.pictures is not None:
+            self.pictures.push_camera(side, frame.image, frame.seq, self.wall_ns(t_ns))
 
     def _remember_frame_id(self, index: int, frame_id: int | None) -> None:
         with self._pair_lock:

@@ -342,7 +342,7 @@ class Appliance:
         self.acquisition = Acquisition(
             self.cfg, self.counters, self.health, self.stop_event, self.wall_ns, self.site,
             recorder=self.recorder, publisher=self.publisher, ring=self.ring,
-            watchdog=self.watchdog, watch=self.watch)
+            watchdog=self.watchdog, watch=self.watch, pictures=self.page_hub)
         self.acquisition.sonic_k = self.pool.sonic_k
         reader = self.acquisition.start_anemometer(self.history, self._mounting)
         stack.callback(reader.stop, timeout=1.0)

@@ -232,7 +232,7 @@ class ResultPublisher:
             else np.where(res.valid, res.disparity, np.nan).astype(np.float32),
             gas_mask=res.gas_mask, points3d=res.points3d, velocity3d=res.velocity3d,
             pixels=res.pixels, raw_left=res.raw_left,
-            raw_capture_ns=self.wall_ns(res.t_mono_ns[0]),
+            raw_capture_ns=self.wall_ns(res.t_mono_ns[0]), camera=res.single_camera or "left",
             gas_speed_m_s=summary["speed_m_s"] if ok else None,
             gas_angles_deg=tuple(summary["angles_deg"]) if ok and summary["angles_deg"]
             else None,

@@ -133,10 +133,13 @@ function showFrame(img, f) {
   img.dataset.captureNs = String(f.t_capture_ns);
   img.dataset.seq = String(f.seq);
   img.dataset.resultNs = String(f.t_result_ns);
+  img.dataset.overlayNs = f.overlay_capture_ns == null ? "" : String(f.overlay_capture_ns);
   old.replaceWith(img);
   document.getElementById("overlay").setAttribute("viewBox", `0 0 ${f.width} ${f.height}`);
   $("frame-number").textContent = f.frame;
-  $("processing-age").textContent = ((f.t_result_ns - f.t_capture_ns) / 1e9).toFixed(2);
+  // The overlay is the newest processed result's: say how much older than the picture it is.
+  $("overlay-age").textContent = f.overlay_capture_ns == null ? "no recent gas result"
+    : `gas overlay ${((f.t_capture_ns - f.overlay_capture_ns) / 1e9).toFixed(2)} s older`;
   shown = f;
   tick();
 }
