@@ -162,6 +162,7 @@ class ClockModel:
         self._refit_pending = False
         self._inferred = False
         self._pending: tuple[int, int] | None = None
+        self._burst = False
         self._points: deque[tuple[int, int]] = deque()
         self._fit: ClockFit | None = None
         self._since_fit = 0
@@ -189,6 +190,10 @@ class ClockModel:
         """
         x = self._x_for(host_ns, device_ts_ns, device_frame_id)
         last = self._pending or (self._points[-1] if self._points else None)
+        # Arrived in less than half the time the device says passed, while the fit is still
+        # young: a catch-up burst after a stall, whose arrivals say little of the captures.
+        self._burst = (last is not None and self._span_ns() < self.min_span_ns
+                       and 2 * (host_ns - last[1]) < x - last[0])
         if last is not None:
             residual = host_ns - self._fit.host_time(x) if self._fit else 0.0
             if x <= last[0] or residual < -self.reset_threshold_ns:
@@ -221,6 +226,22 @@ class ClockModel:
         self._since_fit += 1
         if self._since_fit >= self.refit_every:
             self._refit_pending = True
+
+    @property
+    def provisional(self) -> bool:
+        """True while the fit rests on one frame alone (the first after a start or a reset),
+        or for a frame of a catch-up burst while the fit is young.
+
+        Its capture time is then its arrival, late by however long the frame waited on its
+        way: a first frame delivered 0.67 s late after a start stall was paired with the
+        other camera's frame of 0.67 s later (measured), and such a pair yields a nonsense
+        disparity. The next frame corrects the envelope.
+        """
+        return self._burst or len(self._points) + (self._pending is not None) <= 1
+
+    def _span_ns(self) -> int:
+        """Device (or nominal) time the fit's points span, ns."""
+        return self._points[-1][0] - self._points[0][0] if self._points else 0
 
     @property
     def fit(self) -> ClockFit | None:
