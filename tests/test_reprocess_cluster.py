@@ -98,7 +98,9 @@ def test_results_equal_serial_replay_with_the_same_segments(
         for topic in want[0]:
             assert got[0][topic] == want[0][topic], topic
     table = pq.read_table(out / "summaries.parquet")
-    assert table.num_rows == 88 + 73
+    # 90 and 75 frames a camera; the first of each is stamped from its arrival alone and not
+    # paired: 89 and 74 pairs, 87 and 72 triples
+    assert table.num_rows == 87 + 72
     assert set(table.column("appliance_id").to_pylist()) == {"test-appliance-1",
                                                              "test-appliance-2"}
     assert table.column("time").null_count == table.column("vx_m_s").null_count == 0
@@ -129,7 +131,9 @@ def test_a_killed_worker_is_retried_and_every_triple_done_once(
     killer.join(timeout=5)
     assert killed and code == 0
     pairs = _summary_pairs(out / "test-appliance-3" / "long.mcap")
-    assert sorted(pairs) == list(range(1, 299))  # each triple exactly once
+    # each triple exactly once: 299 pairs (each camera's first frame is not paired),
+    # 297 triples, each summary naming its middle pair
+    assert sorted(pairs) == list(range(1, 298))
     attempts = [len(p.read_text().splitlines()) for p in out.glob(".segments/*/*.attempts")]
     assert max(attempts) == 2 and sum(attempts) == len(attempts) + 1
 
@@ -158,7 +162,8 @@ def test_interrupt_then_rerun_does_only_the_missing_segments(
     for i in finished_first:  # not attempted again by the second run
         log = next(out.glob(f".segments/*/seg-{i:05d}.attempts"))
         assert {line.split()[0] for line in log.read_text().splitlines()} == {first_run}
-    assert sorted(_summary_pairs(out / "test-appliance-4" / "long.mcap")) == list(range(1, 299))
+    # 299 pairs (each camera's first frame is not paired), 297 triples
+    assert sorted(_summary_pairs(out / "test-appliance-4" / "long.mcap")) == list(range(1, 298))
 
 
 def test_a_cut_and_a_corrupt_input_do_not_stop_the_others_in_a_sweep(
@@ -178,12 +183,13 @@ def test_a_cut_and_a_corrupt_input_do_not_stop_the_others_in_a_sweep(
     assert f"{cut} ends early" in err
     for alpha in ("0.05", "0.2"):  # one output per combination
         cut_pairs = _summary_pairs(out / "test-appliance-1" / f"cut__alpha={alpha}.mcap")
-        assert 10 < len(cut_pairs) < 88
+        assert 10 < len(cut_pairs) < 87  # fewer than the whole file's 87 triples
         assert sorted(cut_pairs) == list(range(1, len(cut_pairs) + 1))
-        assert len(_summary_pairs(out / "test-appliance-2" / f"b__alpha={alpha}.mcap")) == 73
+        # 75 frames a camera, the first of each not paired: 74 pairs, 72 triples
+        assert len(_summary_pairs(out / "test-appliance-2" / f"b__alpha={alpha}.mcap")) == 72
     table = pq.read_table(out / "summaries.parquet").drop_columns(["time"]).to_pylist()
     assert sorted({r["alpha"] for r in table}) == [0.05, 0.2]
-    assert len(table) == 2 * (73 + len(cut_pairs))
+    assert len(table) == 2 * (72 + len(cut_pairs))
     speeds = {a: [r["speed_m_s"] for r in table if r["alpha"] == a and r["input"].endswith(
         "b.mcap")] for a in (0.05, 0.2)}
-    assert len(speeds[0.05]) == 73 and speeds[0.05] != speeds[0.2]
+    assert len(speeds[0.05]) == 72 and speeds[0.05] != speeds[0.2]

@@ -37,10 +37,18 @@ class StereoStamper:
             period, tolerance_ns=None if tolerance_s is None else int(tolerance_s * 1e9),
             max_delay_ns=int(max_delay_s * 1e9))
         self.clocks = {s: ClockModel(nominal_period_ns=period) for s in SIDES}
+        #: Frames per side left out of pairing because their stamp was provisional.
+        self.provisional = dict.fromkeys(SIDES, 0)
 
     def push(self, side: str, frame: Any, now_ns: int | None) -> list[Any]:
         """Stamp one frame (capture time from its clock model) and return new pairs."""
-        t = self.clocks[side].update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
+        clock = self.clocks[side]
+        t = clock.update(frame.host_ns, frame.device_ts_ns, frame.device_frame_id)
+        if clock.provisional:
+            # Stamped from its arrival alone (ClockModel.provisional): not paired, counted
+            # as unpaired; the recording keeps the frame.
+            self.provisional[side] += 1
+            return [] if now_ns is None else self.poll(now_ns)
         return self._forget_unpaired(self.pairer.push(side, t, frame, now_ns=now_ns))
 
     def poll(self, now_ns: int) -> list[Any]:
@@ -57,4 +65,4 @@ class StereoStamper:
         return self.pairer.flush()
 
     def unpaired(self) -> dict[str, int]:
-        return {s: self.pairer.stats.unpaired(s) for s in SIDES}
+        return {s: self.pairer.stats.unpaired(s) + self.provisional[s] for s in SIDES}
