@@ -134,6 +134,34 @@ def test_an_implausible_speed_is_flagged_and_the_next_triple_starts_cold() -> No
         ChainParameters(max_gas_speed_m_s=0.0)
 
 
+@pytest.mark.parametrize("stride", [1, 2])
+def test_a_warm_flow_from_two_frames_back_runs_the_whole_pyramid(stride: int,
+                                                                  monkeypatch) -> None:
+    """Two workers warm-start from their own triple two frames back: the flow then takes
+    ``far_warm_flow_options`` (the whole pyramid); one frame back ``warm_flow_options``."""
+    from processing.chain import driver
+
+    frames = blob_frames(n_frames=2 + 2 * stride)
+    seen: list[dict] = []
+    brox = driver.brox_optical_flow
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs)
+        return brox(*args, **kwargs)
+
+    monkeypatch.setattr(driver, "brox_optical_flow", spy)
+    state, params = ChainState(stride=stride), ChainParameters(d0=20.0)
+    for k in (0, stride):
+        res = compute_scene_flow(list(frames.left[k:k + 3]), list(frames.right[k:k + 3]),
+                                 frames.times_s[k:k + 3], bench_geometry(), params, state)
+    assert res.warm
+    cold, warm = seen
+    assert cold["initial_flow"] is None and "n_levels" not in cold
+    expected = params.warm_flow_options if stride == 1 else params.far_warm_flow_options
+    assert {k: warm[k] for k in expected} == dict(expected)
+    assert ("n_levels" in warm) == (stride == 1)
+
+
 @pytest.mark.parametrize(
     ("mutate", "message"),
     [

@@ -25,10 +25,9 @@ images, dt = ((t1 + t2) - (t0 + t1)) / 2 = (t2 - t0) / 2, taken from the timesta
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -152,7 +151,7 @@ def _summary(velocity: np.ndarray, valid: np.ndarray, mask: np.ndarray, u_sf: np
                               tuple(flags))
     if summary.speed is None or summary.speed <= params.max_gas_speed_m_s:
         return summary, False
-    return dataclasses.replace(summary, valid=False,
+    return replace(summary, valid=False,
                                flags=(*summary.flags, "implausible_speed")), True
 
 
@@ -284,11 +283,11 @@ def _crop(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
         return np.ascontiguousarray(a[index])
 
     lft, rgt = box.left, box.right
-    cl = dataclasses.replace(pl, diff0=cut(pl.diff0, lft), diff1=cut(pl.diff1, lft))
-    cr = dataclasses.replace(pr, diff0=cut(pr.diff0, rgt), diff1=cut(pr.diff1, rgt))
+    cl = replace(pl, diff0=cut(pl.diff0, lft), diff1=cut(pl.diff1, lft))
+    cr = replace(pr, diff0=cut(pr.diff0, rgt), diff1=cut(pr.diff1, rgt))
     cwarm = None if warm is None else WarmStart(
         cut(warm.flow, lft), cut(warm.disparity, lft) - np.float32(box.shift),
-        cut(warm.change, lft))
+        cut(warm.change, lft), warm.steps)
     cblank = None if blanked is None else (cut(blanked[0], lft), cut(blanked[1], rgt))
     previous, steps = history
     return cl, cr, cwarm, cblank, (None if previous is None else cut(previous, lft), steps)
@@ -333,7 +332,8 @@ def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | Non
     return brox_optical_flow(
         pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
         initial_flow=None if warm is None else warm.flow,
-        **solver_options(params.flow_options, params.warm_flow_options, warm is not None))
+        **solver_options(params.flow_options, params.warm_flow_for(warm.steps if warm else 1),
+                         warm is not None))
 
 
 def _initial_disparity(pl: PreprocessedTriple, pr: PreprocessedTriple,

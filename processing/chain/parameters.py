@@ -13,11 +13,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["WARM_DISPARITY_OPTIONS", "WARM_FLOW_OPTIONS", "ChainParameters"]
+__all__ = ["FAR_WARM_FLOW_OPTIONS", "WARM_DISPARITY_OPTIONS", "WARM_FLOW_OPTIONS",
+           "ChainParameters"]
 
 #: Solver options on a warm start (see ChainParameters), chosen by measurement
 #: (docs/performance.md).
 WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
+#: The flow's options on a warm start from a triple two frames back (two workers): the whole
+#: pyramid. That start shares no differential image with this triple; on the finest 6 levels
+#: its error stayed in the flow and went into d' (simulated site, 2 workers: mean V_Z -0.04
+#: and -0.28 m/s against 0.21 true; with the whole pyramid 0.23 and 0.17). One frame back the
+#: finest 6 levels are better (the whole pyramid read Table 3 and the robustness matrix worse).
+FAR_WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_inner": 2, "n_sor": 8}
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
                                               "n_inner_finest": 2, "n_sor": 8}
 
@@ -106,6 +113,9 @@ class ChainParameters:
     warm_flow_options, warm_disparity_options : mapping
         Overrides of ``flow_options`` / ``disparity_options`` on a warm start: the
         previous fields are already close, so fewer pyramid levels and iterations do.
+    far_warm_flow_options : mapping
+        Overrides of ``flow_options`` on a warm start from a triple two frames back (two
+        workers alternating, ``ChainState.stride`` 2), instead of ``warm_flow_options``.
     """
 
     alpha: float = 0.05
@@ -139,6 +149,8 @@ class ChainParameters:
         default_factory=lambda: dict(WARM_FLOW_OPTIONS))
     warm_disparity_options: Mapping[str, Any] = field(
         default_factory=lambda: dict(WARM_DISPARITY_OPTIONS))
+    far_warm_flow_options: Mapping[str, Any] = field(
+        default_factory=lambda: dict(FAR_WARM_FLOW_OPTIONS))
 
     def __post_init__(self) -> None:
         if self.disparity_init not in ("sgm", "d0"):
@@ -184,3 +196,7 @@ class ChainParameters:
                 f"known: {', '.join(names)}"
             )
         return cls(**dict(values))
+
+    def warm_flow_for(self, steps: int) -> Mapping[str, Any]:
+        """The flow's warm-start overrides for a start ``steps`` frames back (1 or 2)."""
+        return self.warm_flow_options if steps == 1 else self.far_warm_flow_options

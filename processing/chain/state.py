@@ -57,11 +57,13 @@ Times = tuple[float, float, float]
 
 @dataclass(frozen=True)
 class WarmStart:
-    """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px."""
+    """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px, of the
+    triple ``steps`` frames back (the state's stride)."""
 
     flow: np.ndarray
     disparity: np.ndarray
     change: np.ndarray
+    steps: int = 1
 
 
 @dataclass
@@ -189,7 +191,8 @@ class ChainState:
         self.warm_run += 1
         assert self.previous_flow is not None and self.previous_disparity is not None
         assert self.previous_change is not None
-        return WarmStart(self.previous_flow, self.previous_disparity, self.previous_change)
+        return WarmStart(self.previous_flow, self.previous_disparity, self.previous_change,
+                         self.stride)
 
     def change_history(self, follows: bool) -> tuple[np.ndarray | None, int]:
         """The previous triple's d'_L (None unless this triple ``follows`` it) and the frames
