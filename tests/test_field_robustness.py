@@ -116,6 +116,40 @@ def test_without_the_depth_gate_the_object_is_taken_for_gas() -> None:
     assert any(res.gas_mask.sum() > 200 for res in results)
 
 
+def _object_disk(radius_px: float) -> np.ndarray:
+    """Pixels within ``radius_px`` of the warm disk's centre in the left view at t0."""
+    yy, xx = np.mgrid[0:SMALL.height, 0:SMALL.width]
+    x0 = SMALL.cx + SMALL.s_px * -0.4 / 8.0
+    y0 = SMALL.cy + SMALL.s_px * 0.1 / 8.0
+    return np.hypot(xx - x0, yy - y0) < radius_px
+
+
+def test_the_gate_tolerance_decides_whether_an_object_just_behind_the_band_is_gated() -> None:
+    # The object (8 m: d = 14.6 px) lies 4 px below the band's lower edge d0 = 18.6 px:
+    # outside the default 3 px margin, inside a 5 px one.
+    gated = _gas_free_run(ChainParameters(d0=18.6, sgm_num_disparities=16), n_frames=3)[0]
+    wide = _gas_free_run(ChainParameters(d0=18.6, sgm_num_disparities=16,
+                                         gate_tolerance_px=5.0), n_frames=3)[0]
+    assert "object_motion_rejected" in gated.summary.flags and not gated.gas_mask.any()
+    assert "object_motion_rejected" not in wide.summary.flags
+    assert wide.gas_mask[_object_disk(15.0)].mean() > 0.5
+
+
+def test_pixels_the_gate_blanked_carry_no_valid_velocity() -> None:
+    # Blanked to "no change", the object's pixels get ~0 velocity; where the segmentation
+    # keeps them (an object inside a plume) that ~0 must not enter the frame's mean.
+    res = _gas_free_run(ChainParameters(d0=20.0, sgm_num_disparities=16), n_frames=3)[0]
+    assert "object_motion_rejected" in res.summary.flags
+    disk = _object_disk(15.0)
+    assert res.valid[disk].mean() < 0.2
+    assert res.valid[~_object_disk(40.0)].mean() > 0.9
+
+
+def test_a_negative_gate_tolerance_is_refused() -> None:
+    with pytest.raises(ValueError, match="gate_tolerance_px"):
+        ChainParameters(gate_tolerance_px=-1.0)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_jitter_with_noise_is_registered_within_005_px(seed: int) -> None:
     rng = np.random.default_rng(seed)

@@ -124,7 +124,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     mask, phi = _segment(box, pl.diff0, flow, params)
     clock.lap("segmentation")
     velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, mask, box,
-                                                            geometry, params, dt)
+                                                            blanked, geometry, params, dt)
     clock.lap("velocity_quality")
     summary, implausible = _summary(velocity, valid, mask, u_sf, u_sf_valid, flags, params)
     clock.lap("summary")
@@ -229,6 +229,7 @@ def _depth_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, params: ChainPar
     """Blank what moves outside the gas's disparity band; the blanked masks, or None."""
     gate = out_of_band_motion(pl.diff0, pr.diff0, d_min=params.d0,
                               d_max=params.d0 + params.sgm_num_disparities,
+                              tolerance_px=params.gate_tolerance_px,
                               dilate_px=params.max_motion_px)
     if gate.fraction <= 0:
         return pl, pr, None
@@ -383,18 +384,20 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
 
 
 def _velocity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray, d: np.ndarray,
-              dd: np.ndarray, gas: np.ndarray, box: Box | None, geometry: StereoGeometry,
+              dd: np.ndarray, gas: np.ndarray, box: Box | None,
+              blanked: tuple[np.ndarray, np.ndarray] | None, geometry: StereoGeometry,
               params: ChainParameters, dt: float) -> tuple[np.ndarray, ...]:
     """Stage 4: velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF
     only on the ``gas`` mask, the region c_USF (Eq. 8) averages it over; nothing valid
-    outside the solvers' ``box``."""
+    outside the solvers' ``box`` nor where the depth gate ``blanked`` the left view."""
     out = velocity_and_quality(
         flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
         principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
         baseline=geometry.baseline, dt=dt, gamma1=params.gamma1, gamma2=params.gamma2,
         quality_mask=gas)
+    # A blanked pixel shows "no change", and the segmentation may keep it: ~0 m/s, no gas.
+    drop = np.zeros(d.shape, bool) if blanked is None else blanked[0].copy()
     if box is not None:
-        inside = box.mask(d.shape)
-        out[2][~inside] = False  # valid
-        out[4][~inside] = False  # u_sf_valid
+        drop |= ~box.mask(d.shape)
+    out[2][drop] = out[4][drop] = False  # valid, u_sf_valid
     return out

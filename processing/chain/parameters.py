@@ -69,6 +69,11 @@ class ChainParameters:
     depth_gate : bool
         Remove moving image regions whose stereo disparity lies outside the gas band
         [d0, d0 + sgm_num_disparities] before the solvers (:mod:`processing.preprocess.depth_gate`).
+    gate_tolerance_px : float
+        Margin of the depth gate around the gas band, px: SGBM's error and the gas's own
+        depth spread. Something moving just behind the band's far edge is let through by
+        as much (measured: a warm object at 8 m, 29.1 px, behind gas whose band ends at
+        32 px, came through the default 3 px).
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
     temporal_weight : float
@@ -132,6 +137,7 @@ class ChainParameters:
     gas_temperature_k: float | None = None
     min_contrast_k: float = 1.0
     depth_gate: bool = True
+    gate_tolerance_px: float = 3.0
     max_motion_px: int = 8
     temporal_weight: float = 0.7
     diff_scale: float | None = None
@@ -171,6 +177,8 @@ class ChainParameters:
                 or self.region_margin_px < 0:
             raise ValueError(f"region_margin_px must be an integer >= 0, "
                              f"got {self.region_margin_px!r}")
+        if not self.gate_tolerance_px >= 0:
+            raise ValueError(f"gate_tolerance_px must be >= 0, got {self.gate_tolerance_px!r}")
         if not self.max_gas_speed_m_s > 0:
             raise ValueError(f"max_gas_speed_m_s must be positive, "
                              f"got {self.max_gas_speed_m_s!r}")
