@@ -34,7 +34,7 @@ import numpy as np
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
 from processing.chain.parameters import ChainParameters
-from processing.chain.region import Box, choose_region
+from processing.chain.region import Box, choose_region, crop_inputs, paste_fields
 from processing.chain.result import SceneFlowResult, frame_interval
 from processing.chain.scale import gas_radiance, initial_scale
 from processing.chain.state import ChainState, Times, WarmStart, solver_options
@@ -113,13 +113,14 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
 
     box = _region(pl, params, warm, stream)
-    cl, cr, cwarm, cblank, history = _crop(box, pl, pr, warm, blanked, stream, follows)
+    cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
+                                                 stream.change_history(follows))
     flow = _flow(cl, params, cwarm)
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
     d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history)
-    flow, d, dd = _paste(box, flow, d, dd, warm)
+    flow, d, dd = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
     mask, phi = _segment(box, pl.diff0, flow, params)
     clock.lap("segmentation")
@@ -267,48 +268,6 @@ def _region(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | N
     return choose_region((pl.diff0, pl.diff1), warm.flow, warm.disparity, stream.previous_mask,
                          margin_px=params.region_margin_px,
                          max_fraction=params.region_max_fraction)
-
-
-def _crop(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
-          warm: WarmStart | None, blanked: tuple[np.ndarray, np.ndarray] | None,
-          stream: ChainState, follows: bool
-          ) -> tuple[PreprocessedTriple, PreprocessedTriple, WarmStart | None,
-                     tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray | None, int]]:
-    """The solvers' inputs inside ``box``: left images, warm fields and history on the box,
-    the right images ``box.shift`` columns further left, the disparity less that shift."""
-    history = stream.change_history(follows)
-    if box is None:
-        return pl, pr, warm, blanked, history
-
-    def cut(a: np.ndarray, index: tuple[slice, slice]) -> np.ndarray:
-        return np.ascontiguousarray(a[index])
-
-    lft, rgt = box.left, box.right
-    cl = replace(pl, diff0=cut(pl.diff0, lft), diff1=cut(pl.diff1, lft))
-    cr = replace(pr, diff0=cut(pr.diff0, rgt), diff1=cut(pr.diff1, rgt))
-    cwarm = None if warm is None else WarmStart(
-        cut(warm.flow, lft), cut(warm.disparity, lft) - np.float32(box.shift),
-        cut(warm.change, lft), warm.steps)
-    cblank = None if blanked is None else (cut(blanked[0], lft), cut(blanked[1], rgt))
-    previous, steps = history
-    return cl, cr, cwarm, cblank, (None if previous is None else cut(previous, lft), steps)
-
-
-def _paste(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarray,
-           warm: WarmStart | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whole-frame w_L, d_L, d'_L from the box's: outside it no motion, the previous d_L
-    (a start for the next triple, not a measurement: the chain marks it invalid)."""
-    if box is None:
-        return flow, d, dd
-    assert warm is not None
-    shape = warm.disparity.shape
-    full_flow = np.zeros((*shape, 2), np.float32)
-    full_flow[box.left] = flow
-    full_d = np.array(warm.disparity, np.float32, copy=True)
-    full_d[box.left] = d + np.float32(box.shift)
-    full_dd = np.zeros(shape, np.float32)
-    full_dd[box.left] = dd
-    return full_flow, full_d, full_dd
 
 
 def _segment(box: Box | None, diff: np.ndarray, flow: np.ndarray, params: ChainParameters

@@ -22,11 +22,13 @@ changes nothing but the coordinates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
+from processing.chain.state import WarmStart
+from processing.preprocess.differential import PreprocessedTriple
 from processing.segmentation.segment import robust_spread
 
 #: Contrast over the robust spread above which a pixel counts as active (the
@@ -155,3 +157,49 @@ def choose_region(diffs: tuple[np.ndarray, ...], previous_flow: np.ndarray,
     if box.y1 - box.y0 < min_size or box.x1 - box.x0 < min_size:
         return None
     return right_shift(box, previous_disparity)
+
+
+def crop_inputs(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
+                warm: WarmStart | None, blanked: tuple[np.ndarray, np.ndarray] | None,
+                history: tuple[np.ndarray | None, int]
+                ) -> tuple[PreprocessedTriple, PreprocessedTriple, WarmStart | None,
+                           tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray | None, int]]:
+    """The solvers' inputs inside ``box`` (None: the whole frame, unchanged).
+
+    Left differential images (Eq. 2), warm fields, the gate's blanked masks and the d'
+    history (previous d'_L, frames back) on the box; the right images and blanked mask
+    ``box.shift`` columns further left, and the warm disparity less that shift.
+    """
+    if box is None:
+        return pl, pr, warm, blanked, history
+
+    def cut(a: np.ndarray, index: tuple[slice, slice]) -> np.ndarray:
+        return np.ascontiguousarray(a[index])
+
+    lft, rgt = box.left, box.right
+    cl = replace(pl, diff0=cut(pl.diff0, lft), diff1=cut(pl.diff1, lft))
+    cr = replace(pr, diff0=cut(pr.diff0, rgt), diff1=cut(pr.diff1, rgt))
+    cwarm = None if warm is None else WarmStart(
+        cut(warm.flow, lft), cut(warm.disparity, lft) - np.float32(box.shift),
+        cut(warm.change, lft), warm.steps)
+    cblank = None if blanked is None else (cut(blanked[0], lft), cut(blanked[1], rgt))
+    previous, steps = history
+    return cl, cr, cwarm, cblank, (None if previous is None else cut(previous, lft), steps)
+
+
+def paste_fields(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarray,
+                 warm: WarmStart | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whole-frame w_L (H, W, 2), d_L and d'_L (H, W), px, from the box's: outside it no
+    motion, the previous d_L (a start for the next triple, not a measurement: the chain
+    marks it invalid)."""
+    if box is None:
+        return flow, d, dd
+    assert warm is not None
+    shape = warm.disparity.shape
+    full_flow = np.zeros((*shape, 2), np.float32)
+    full_flow[box.left] = flow
+    full_d = np.array(warm.disparity, np.float32, copy=True)
+    full_d[box.left] = d + np.float32(box.shift)
+    full_dd = np.zeros(shape, np.float32)
+    full_dd[box.left] = dd
+    return full_flow, full_d, full_dd
