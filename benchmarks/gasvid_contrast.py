@@ -12,9 +12,10 @@ does) and prints, per release class from class 1 on, from the frames alone (no c
 - the rate step to the class before (x).
 
 A wind change shows as a turn of the plume's direction; the contrast then changes at a
-constant rate by more than adjacent classes differ (docs/real-footage.md)::
+constant rate by more than adjacent classes differ (docs/real-footage.md). On the clip the
+project ships (class 3 only), or on a whole labelled video from wherever it is stored::
 
-    python benchmarks/gasvid_contrast.py ../shared/data/ogi/gasvid/1238
+    python benchmarks/gasvid_contrast.py data/ogi/gasvid/1238
 """
 
 from __future__ import annotations

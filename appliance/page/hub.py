@@ -129,13 +129,12 @@ class EncodedFrame:
 @dataclass(frozen=True)
 class CameraPicture:
     """A camera's frame waiting to be drawn: its own copy of the image (H, W) counts, the
-    camera, its frame number, its capture time and when it reached the hub (UNIX ns)."""
+    camera, its frame number and its capture time (UNIX ns)."""
 
     image: np.ndarray
     camera: str
     frame: int
     t_capture_ns: int
-    t_received_ns: int
 
 
 @dataclass
@@ -245,13 +244,13 @@ class PageHub:
             self._last_picture_ns = now
             self._camera_fed = True
         picture = CameraPicture(np.array(image, copy=True), camera, int(frame),
-                                int(t_capture_ns), self.clock())
+                                int(t_capture_ns))
         with self._cond:
             self._stats.frames_pushed += 1
             self._stats.camera_frames += 1
             self._stats.frames_replaced += self._frame is not None
             self._frame = picture
-            self._frame_t_ns = picture.t_received_ns
+            self._frame_t_ns = self.clock()
             self._cond.notify()
         return True
 
