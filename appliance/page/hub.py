@@ -212,14 +212,9 @@ class PageHub:
                 self._overlay_due_ns = now + self._period_ns
             if self._camera_fed:
                 return item.gas_mask is not None
-            if self._thread is None or now - self._last_picture_ns < self._period_ns:
+            if not self._picture_due(now):
                 return False
-            self._last_picture_ns = now
-            self._stats.frames_pushed += 1
-            self._stats.frames_replaced += self._frame is not None
-            self._frame = item
-            self._frame_t_ns = self.clock()
-            self._cond.notify()
+            self._fill_slot(item)
         return True
 
     def push_camera(self, camera: str, image: np.ndarray, frame: int,
@@ -237,22 +232,34 @@ class PageHub:
         t_capture_ns : int
             Capture time, UNIX ns (the appliance's clock).
         """
-        now = time.monotonic_ns()
         with self._cond:
-            if self._thread is None or now - self._last_picture_ns < self._period_ns:
+            if not self._picture_due(time.monotonic_ns()):
                 return False
-            self._last_picture_ns = now
             self._camera_fed = True
+        # Copied outside the lock: the hub's thread never waits on the pairing thread's copy.
         picture = CameraPicture(np.array(image, copy=True), camera, int(frame),
                                 int(t_capture_ns))
         with self._cond:
-            self._stats.frames_pushed += 1
             self._stats.camera_frames += 1
-            self._stats.frames_replaced += self._frame is not None
-            self._frame = picture
-            self._frame_t_ns = self.clock()
-            self._cond.notify()
+            self._fill_slot(picture)
         return True
+
+    def _picture_due(self, now: int) -> bool:
+        """Whether a picture is due at ``now`` (monotonic ns); if so its time is taken.
+        Call with the lock held."""
+        if self._thread is None or now - self._last_picture_ns < self._period_ns:
+            return False
+        self._last_picture_ns = now
+        return True
+
+    def _fill_slot(self, picture: LiveFrame | CameraPicture) -> None:
+        """Put ``picture`` into the slot (replacing one not yet encoded) and wake the
+        hub's thread. Call with the lock held."""
+        self._stats.frames_pushed += 1
+        self._stats.frames_replaced += self._frame is not None
+        self._frame = picture
+        self._frame_t_ns = self.clock()
+        self._cond.notify()
 
     def wants_pictures(self) -> bool:
         """Whether a picture (with a camera feed: a gas overlay) is due; the daemon then
