@@ -96,3 +96,46 @@ def test_split_merge_round_trip() -> None:
     out = np.zeros_like(field)
     redblack.merge_field(red, black, out)
     np.testing.assert_array_equal(out, field)
+
+
+def _packed(h: int, w: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    s = _system(h, w, seed)
+    red, black = redblack.empty_system(h, w)
+    redblack.pack_system(s["a11"], s["a12"], s["a22"], s["r1"], s["r2"], s["wx1"], s["wy1"],
+                         s["wx2"], s["wy2"], red, black)
+    return red, black
+
+
+@pytest.mark.parametrize(("h", "w", "n_iter"), [(9, 12, 5), (40, 33, 8), (3, 5, 12)])
+def test_wavefront_iterations_equal_one_after_the_other(h: int, w: int, n_iter: int) -> None:
+    # One call runs its iterations as a wavefront over the rows; one iteration per call is
+    # the plain red sweep, black sweep order. Every update must see the same neighbours.
+    red, black = _packed(h, w, seed=3)
+    rng = np.random.default_rng(4)
+    start = [rng.uniform(-1, 1, redblack.compact_shape(h, w)).astype(np.float32)
+             for _ in range(4)]
+    at_once = [x.copy() for x in start]
+    redblack.solve_sor(red, black, *at_once, n_iter, 1.7)
+    one_by_one = [x.copy() for x in start]
+    for _ in range(n_iter):
+        redblack.solve_sor(red, black, *one_by_one, 1, 1.7)
+    for a, b in zip(at_once, one_by_one, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+    assert not np.allclose(at_once[0], start[0])
+
+
+def test_shared_weights_read_the_first_unknowns_planes() -> None:
+    h, w = 11, 14
+    red, black = _packed(h, w, seed=5)
+    copied = [red.copy(), black.copy()]
+    for c in copied:
+        c[redblack.W2:redblack.W2 + 4] = c[redblack.W1:redblack.W1 + 4]
+    rng = np.random.default_rng(6)
+    start = [rng.uniform(-1, 1, redblack.compact_shape(h, w)).astype(np.float32)
+             for _ in range(4)]
+    shared = [x.copy() for x in start]
+    redblack.solve_sor(red, black, *shared, 6, 1.5, True)
+    reference = [x.copy() for x in start]
+    redblack.solve_sor(copied[0], copied[1], *reference, 6, 1.5)
+    for a, b in zip(shared, reference, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)

@@ -136,6 +136,63 @@ def _flow_after_solve(terms: _FlowTerms, ws: variational.Workspace) -> None:
     """Nothing: the flow is the plain lagged solution of Eq. 5."""
 
 
+@numba.njit(cache=True, fastmath=True)
+def _split_flow_inputs(
+    i0: np.ndarray,
+    i1w: np.ndarray,
+    d0: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    d1: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    u: np.ndarray,
+    v: np.ndarray,
+    inputs: np.ndarray,
+) -> None:
+    """The nine data-term inputs of one warp, written straight into compact form.
+
+    Parameters
+    ----------
+    i0, i1w : ndarray, shape (H, W), float32
+        I0 and I1 warped by the current flow, I1(x + w).
+    d0, d1 : tuple of 5 ndarray, shape (H, W), float32
+        (d/dx, d/dy, d2/dx2, d2/dxdy, d2/dy2) of I0 and of I1(x + w). Averaging each pair
+        makes the linearisation symmetric and markedly more accurate (Brox et al.).
+    u, v : ndarray, shape (H, W), float32
+        The flow of the warp, px (a sample outside the image has no data term).
+    inputs : ndarray, shape (N_INPUTS, 2, H+2, W2+2), float32
+        Receives, per colour, iz, ix, iy, ixz, iyz, ixx, ixy, iyy and the valid mask
+        (:func:`_compact_data_terms`).
+    """
+    h, w = i0.shape
+    half = np.float32(0.5)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    wm = np.float32(w - 1)
+    hm = np.float32(h - 1)
+    a0x, a0y, a0xx, a0xy, a0yy = d0
+    a1x, a1y, a1xx, a1xy, a1yy = d1
+    for y in range(h):
+        fy = np.float32(y)
+        for x in range(w):
+            c, yc, xc = lagged.compact_index(y, x)
+            mx = np.float32(x) + u[y, x]
+            my = fy + v[y, x]
+            inputs[0, c, yc, xc] = i1w[y, x] - i0[y, x]
+            inputs[1, c, yc, xc] = half * (a1x[y, x] + a0x[y, x])
+            inputs[2, c, yc, xc] = half * (a1y[y, x] + a0y[y, x])
+            inputs[3, c, yc, xc] = a1x[y, x] - a0x[y, x]
+            inputs[4, c, yc, xc] = a1y[y, x] - a0y[y, x]
+            inputs[5, c, yc, xc] = half * (a1xx[y, x] + a0xx[y, x])
+            inputs[6, c, yc, xc] = half * (a1xy[y, x] + a0xy[y, x])
+            inputs[7, c, yc, xc] = half * (a1yy[y, x] + a0yy[y, x])
+            inside = mx >= zero and mx <= wm and my >= zero and my <= hm
+            inputs[8, c, yc, xc] = one if inside else zero
+
+
+def _derivatives(image: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(d/dx, d/dy, d2/dx2, d2/dxdy, d2/dy2) of ``image`` (H, W) float32, 5-tap stencils."""
+    ix, iy = derivatives.dx(image), derivatives.dy(image)
+    return ix, iy, derivatives.dx(ix), derivatives.dy(ix), derivatives.dy(iy)
+
+
 def _level_flow(
     i0: np.ndarray,
     i1: np.ndarray,
@@ -152,28 +209,15 @@ def _level_flow(
 ) -> None:
     """Refine (u, v) in place at one pyramid level (outer warps x lagged FP x SOR)."""
     xx, yy = derivatives.pixel_grid(i0.shape)
-    i0x, i0y = derivatives.dx(i0), derivatives.dy(i0)
-    i0xx, i0xy, i0yy = derivatives.dx(i0x), derivatives.dy(i0x), derivatives.dy(i0y)
+    d0 = _derivatives(i0)
+    ws = variational.workspace(i0.shape)
     for _ in range(n_warps):
-        mx, my = xx + u, yy + v
-        valid = derivatives.inside_mask(mx, my)
-        i1w = derivatives.warp(i1, mx, my)
-        # Derivatives of the warped frame (one remap instead of six); averaged with those
-        # of I0, which makes the linearisation symmetric and markedly more accurate.
-        i1x, i1y = derivatives.dx(i1w), derivatives.dy(i1w)
-        i1xx, i1xy, i1yy = derivatives.dx(i1x), derivatives.dy(i1x), derivatives.dy(i1y)
-        iz = i1w - i0
-        ix = 0.5 * (i1x + i0x)
-        iy = 0.5 * (i1y + i0y)
-        ixz = i1x - i0x
-        iyz = i1y - i0y
-        ixx = 0.5 * (i1xx + i0xx)
-        ixy = 0.5 * (i1xy + i0xy)
-        iyy = 0.5 * (i1yy + i0yy)
+        # Derivatives of the warped frame (one remap instead of six).
+        i1w = derivatives.warp(i1, xx + u, yy + v)
+        _split_flow_inputs(i0, i1w, d0, _derivatives(i1w), u, v, ws.inputs)
         # One penaliser for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
-        lagged.lagged_iterations(_FlowTerms(beta), (iz, ix, iy, ixz, iyz, ixx, ixy, iyy, valid),
-                                 u, v, variational.workspace(i0.shape), (alpha, alpha), True,
-                                 eps, n_inner, n_sor, omega)
+        lagged.lagged_iterations(_FlowTerms(beta), u, v, ws, (alpha, alpha), True, eps,
+                                 n_inner, n_sor, omega)
 
 
 def brox_optical_flow(

@@ -13,7 +13,7 @@ import cv2
 import numba
 import numpy as np
 
-from processing.preprocess.translation import warp_translation
+from processing.preprocess.translation import translate_into
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -47,16 +47,60 @@ def _gauss_newton_sums(
     return float(a11), float(a12), float(a22), float(b1), float(b2)
 
 
-def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float) -> float:
-    """c = robust_scale x 1.4826 x median|r| over the inner region (every 3rd pixel).
+@numba.njit(cache=True)
+def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float,
+                  sample: np.ndarray) -> float:
+    """c = robust_scale x 1.4826 x median|r| over the inner region (every 3rd pixel);
+    ``sample`` is scratch of at least that many values.
 
     The median, not the mean: a warm object moving over a fifth of the frame inflates the
     mean residual so much that its pixels keep weight and pull the shift towards their own
     motion (measured: 0.1 px); the median stays at the noise of the static background.
     """
     h, w = resid.shape
-    inner = resid[border:h - border:3, border:w - border:3]
-    return robust_scale * 1.4826 * float(np.median(np.abs(inner))) + 1e-12
+    n = 0
+    for i in range(border, h - border, 3):
+        for j in range(border, w - border, 3):
+            sample[n] = abs(resid[i, j])
+            n += 1
+    return robust_scale * 1.4826 * float(np.median(sample[:n])) + 1e-12
+
+
+@numba.njit(cache=True, fastmath=True)
+def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                       border: int, dx: float, dy: float, robust_scale: float, max_iter: int,
+                       tol: float) -> tuple[float, float, bool, float]:
+    """The iterations of :func:`_gauss_newton` in compiled code: (dx, dy, converged, cost)."""
+    h, w = ref.shape
+    resid = np.empty((h, w), np.float32)
+    rows = np.empty((h, w), np.float32)
+    buf = np.empty(w + 2 * (min(h, w) // 2) + 8, np.float32)
+    sample = np.empty(((h - 2 * border) // 3 + 1) * ((w - 2 * border) // 3 + 1), np.float32)
+    c = np.inf
+    for _ in range(max_iter):
+        if max(abs(dx), abs(dy)) + 3 > min(h, w) // 2:
+            return dx, dy, False, np.inf  # diverged far beyond any jitter
+        translate_into(mov, dx, dy, resid, rows, buf)
+        for i in range(h):
+            ri = resid[i]
+            fi = ref[i]
+            for j in range(w):
+                ri[j] -= fi[j]
+        c = _cauchy_scale(resid, border, robust_scale, sample)
+        a11, a12, a22, b1, b2 = _gauss_newton_sums(resid, gx, gy, border, c)
+        det = a11 * a22 - a12 * a12
+        if det <= 0.0:
+            return dx, dy, False, np.inf
+        # moving(x + d + delta) ~ moving(x + d) + grad . delta = reference(x)
+        step_x = -(a22 * b1 - a12 * b2) / det
+        step_y = -(a11 * b2 - a12 * b1) / det
+        dx += step_x
+        dy += step_y
+        if step_x * step_x + step_y * step_y < tol * tol:
+            return dx, dy, True, c
+    # No convergence: a rigid shift does not explain the change (moving gas over a
+    # featureless background, not camera jitter over a static scene).
+    return dx, dy, False, c
 
 
 @dataclass(frozen=True)
@@ -116,27 +160,7 @@ def _gauss_newton(level: Level, start: tuple[float, float], *, robust_scale: flo
     Returns (shift, converged, cost), cost the Cauchy scale of the last residual (the
     median |r|, i.e. how well the static background fits; inf when it diverged).
     """
-    ref, mov, gx, gy, border = level.ref, level.mov, level.gx, level.gy, level.border
-    h, w = ref.shape
-    dx, dy = start
-    c = np.inf
-    for _ in range(max_iter):
-        if max(abs(dx), abs(dy)) + 3 > min(h, w) // 2:
-            return (float(dx), float(dy)), False, np.inf  # diverged far beyond any jitter
-        resid = warp_translation(mov, (dx, dy))
-        resid -= ref
-        c = _cauchy_scale(resid, border, robust_scale)
-        a11, a12, a22, b1, b2 = _gauss_newton_sums(resid, gx, gy, border, c)
-        det = a11 * a22 - a12 * a12
-        if det <= 0.0:
-            return (float(dx), float(dy)), False, np.inf
-        # moving(x + d + delta) ~ moving(x + d) + grad . delta = reference(x)
-        step_x = -(a22 * b1 - a12 * b2) / det
-        step_y = -(a11 * b2 - a12 * b1) / det
-        dx += step_x
-        dy += step_y
-        if step_x * step_x + step_y * step_y < tol * tol:
-            return (float(dx), float(dy)), True, c
-    # No convergence: a rigid shift does not explain the change (moving gas over a
-    # featureless background, not camera jitter over a static scene).
-    return (float(dx), float(dy)), False, c
+    dx, dy, converged, cost = _gauss_newton_loop(
+        level.ref, level.mov, level.gx, level.gy, level.border, float(start[0]),
+        float(start[1]), float(robust_scale), int(max_iter), float(tol))
+    return (float(dx), float(dy)), bool(converged), float(cost)

@@ -7,26 +7,85 @@ Convention: a shift d = (dx, dy) means ``moving(x + d) ~ reference(x)``
 
 from __future__ import annotations
 
-import cv2
+import numba
 import numpy as np
 
 
-def _cubic_weights(frac: float) -> np.ndarray:
-    """Keys cubic-convolution weights (a = -0.5) for taps at -1, 0, 1, 2 and offset ``frac``."""
-    t = np.array([1.0 + frac, frac, 1.0 - frac, 2.0 - frac])
-    a = -0.5
-    near = (a + 2.0) * t**3 - (a + 3.0) * t**2 + 1.0
-    far = a * t**3 - 5.0 * a * t**2 + 8.0 * a * t - 4.0 * a
-    return np.where(t <= 1.0, near, far)
+@numba.njit(cache=True, inline="always")
+def _cubic_weights(frac: float) -> tuple[float, float, float, float]:
+    """Keys cubic-convolution weights (a = -0.5) for taps at -1, 0, 1, 2 and offset ``frac``
+    in [0, 1)."""
+    t2 = frac * frac
+    t3 = t2 * frac
+    return (-0.5 * t3 + t2 - 0.5 * frac, 1.5 * t3 - 2.5 * t2 + 1.0,
+            -1.5 * t3 + 2.0 * t2 + 0.5 * frac, 0.5 * t3 - 0.5 * t2)
+
+
+@numba.njit(cache=True, inline="always")
+def _reflect(i: int, n: int) -> int:
+    """Index ``i`` mirrored into [0, n) without repeating the edge (OpenCV's
+    BORDER_REFLECT_101); |i| < 2n - 1."""
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * (n - 1) - i
+    return i
+
+
+@numba.njit(cache=True, fastmath=True)
+def translate_into(image: np.ndarray, dx: float, dy: float, out: np.ndarray,
+                   rows: np.ndarray, buf: np.ndarray) -> None:
+    """``out(x, y) = image(x + dx, y + dy)``: separable bicubic, mirrored borders.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), float32
+        The frame; |dx| + 3 <= W and |dy| + 3 <= H.
+    dx, dy : float
+        The shift, px.
+    out, rows : ndarray, shape (H, W), float32
+        Output, and scratch for the horizontally interpolated rows.
+    buf : ndarray, shape (>= W + 2 |floor(dx)| + 6,), float32
+        Scratch for one mirrored row.
+    """
+    h, w = image.shape
+    ix = int(np.floor(dx))
+    iy = int(np.floor(dy))
+    wx0, wx1, wx2, wx3 = _cubic_weights(dx - ix)
+    wy0, wy1, wy2, wy3 = _cubic_weights(dy - iy)
+    fx0, fx1, fx2, fx3 = (np.float32(wx0), np.float32(wx1), np.float32(wx2),
+                          np.float32(wx3))
+    fy0, fy1, fy2, fy3 = (np.float32(wy0), np.float32(wy1), np.float32(wy2),
+                          np.float32(wy3))
+    pad = abs(ix) + 2
+    # The horizontal pass on each source row; a mirrored row's interpolation is the
+    # mirror of the rows' interpolations, so the vertical pass mirrors row indices.
+    for r in range(h):
+        src = image[r]
+        for j in range(w + 2 * pad):
+            buf[j] = src[_reflect(j - pad, w)]
+        o = rows[r]
+        b = pad + ix - 1
+        for x in range(w):
+            o[x] = (((fx0 * buf[b + x]) + fx1 * buf[b + x + 1]) + fx2 * buf[b + x + 2]
+                    + fx3 * buf[b + x + 3])
+    for y in range(h):
+        r0 = rows[_reflect(y + iy - 1, h)]
+        r1 = rows[_reflect(y + iy, h)]
+        r2 = rows[_reflect(y + iy + 1, h)]
+        r3 = rows[_reflect(y + iy + 2, h)]
+        o = out[y]
+        for x in range(w):
+            o[x] = (((fy0 * r0[x]) + fy1 * r1[x]) + fy2 * r2[x]) + fy3 * r3[x]
 
 
 def warp_translation(image: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
     """Resample ``image`` at x + shift (separable bicubic, mirrored borders).
 
     A pure translation gives every pixel the same interpolation weights, so the warp is
-    4 + 4 weighted sums of integer-shifted views. Unlike ``cv2.warpAffine``, which rounds
-    sub-pixel positions to 1/32 px, the weights here use the exact fractional shift: the
-    0.05 px registration target needs that.
+    4 + 4 weighted sums of integer-shifted rows (:func:`translate_into`). Unlike
+    ``cv2.warpAffine``, which rounds sub-pixel positions to 1/32 px, the weights here use
+    the exact fractional shift: the 0.05 px registration target needs that.
 
     Parameters
     ----------
@@ -49,22 +108,16 @@ def warp_translation(image: np.ndarray, shift: tuple[float, float]) -> np.ndarra
     if dx == 0.0 and dy == 0.0:
         return img.copy()
     h, w = img.shape
-    ix, iy = int(np.floor(dx)), int(np.floor(dy))
-    if abs(ix) + 3 > w or abs(iy) + 3 > h:
+    if abs(int(np.floor(dx))) + 3 > w or abs(int(np.floor(dy))) + 3 > h:
         raise ValueError(f"shift {shift!r} is larger than the {w}x{h} image")
-    pad = max(abs(ix), abs(iy)) + 3
-    padded = cv2.copyMakeBorder(img, pad, pad, pad, pad, cv2.BORDER_REFLECT_101)
-    wx = _cubic_weights(dx - ix).astype(np.float32)
-    wy = _cubic_weights(dy - iy).astype(np.float32)
-    rows = np.zeros((h + 2 * pad, w), dtype=np.float32)
-    for k in range(4):
-        x0 = pad + ix + k - 1
-        rows += wx[k] * padded[:, x0 : x0 + w]
-    out = np.zeros((h, w), dtype=np.float32)
-    for k in range(4):
-        y0 = pad + iy + k - 1
-        out += wy[k] * rows[y0 : y0 + h, :]
+    out = np.empty_like(img)
+    translate_into(img, dx, dy, out, np.empty_like(img), scratch_row(w, dx))
     return out
+
+
+def scratch_row(width: int, dx: float) -> np.ndarray:
+    """The row buffer :func:`translate_into` needs for a shift of ``dx`` px."""
+    return np.empty(width + 2 * abs(int(np.floor(dx))) + 6, np.float32)
 
 
 def warp_border_px(*shifts: tuple[float, float]) -> int:

@@ -112,6 +112,47 @@ def catmull_rom_at(img: np.ndarray, x: float, y: float) -> float:
     return wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
 
 
+@numba.njit(inline="always")
+def catmull_rom_dx_at(img: np.ndarray, x: float, y: float) -> tuple[float, float]:
+    """Catmull-Rom sample of ``img`` (H, W) at (x, y) and its exact x-derivative there
+    (0 where x is clamped to the border), border replicated, float32 maths: one point of
+    :func:`warp_dx_catmull_rom`, for fused kernels."""
+    h, w = img.shape
+    fx = min(max(x, _ZERO), np.float32(w - 1))
+    fy = min(max(y, _ZERO), np.float32(h - 1))
+    ix = int(fx)
+    iy = int(fy)
+    tx = fx - ix
+    q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
+    wx0, wx1, wx2, wx3 = _weights(tx)
+    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
+    if x != fx:  # replicated border: the sample is constant along x
+        return value, _ZERO
+    dx0, dx1, dx2, dx3 = _slopes(tx)
+    return value, dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+
+
+@numba.njit(inline="always")
+def catmull_rom_dx_on_row(row: np.ndarray, x: float) -> tuple[float, float]:
+    """:func:`catmull_rom_dx_at` for a sample on a pixel row (``row`` = img[y], shape
+    (W,)): with an integer row the vertical weights are exactly (0, 1, 0, 0), so 4 samples
+    give the same result as 16."""
+    w = row.shape[0]
+    fx = min(max(x, _ZERO), np.float32(w - 1))
+    ix = int(fx)
+    tx = fx - ix
+    q0 = row[max(ix - 1, 0)]
+    q1 = row[ix]
+    q2 = row[min(ix + 1, w - 1)]
+    q3 = row[min(ix + 2, w - 1)]
+    wx0, wx1, wx2, wx3 = _weights(tx)
+    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
+    if x != fx:
+        return value, _ZERO
+    dx0, dx1, dx2, dx3 = _slopes(tx)
+    return value, dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+
+
 @numba.njit(cache=True, fastmath=True)
 def _catmull_rom_dx_rows(
     img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, out: np.ndarray, out_dx: np.ndarray,

@@ -28,10 +28,6 @@ from processing.solvers.redblack import (
     W1_LEFT,
     W1_RIGHT,
     W1_UP,
-    W2_DOWN,
-    W2_LEFT,
-    W2_RIGHT,
-    W2_UP,
 )
 
 #: The level's :class:`processing.solvers.variational.Workspace` (a NamedTuple of compact
@@ -195,12 +191,13 @@ def edge_weights(
 
 
 @numba.njit(cache=True, fastmath=True)
-def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None:
+def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int) -> None:
     """Store 1 / (A11 + sum w1) and 1 / (A22 + sum w2) in the INV_D planes of ``coef``.
 
-    ``a11``, ``a22`` are compact (H+2, W2+2). A zero diagonal (padding entries, or a
-    pixel with neither data nor neighbours) gets 0, which freezes that unknown instead of
-    producing inf.
+    ``a11``, ``a22`` are compact (H+2, W2+2); ``w2`` is the first edge-weight plane of
+    unknown 2 (:data:`processing.solvers.redblack.W2`, or ``W1`` for a joint penaliser). A
+    zero diagonal (padding entries, or a pixel with neither data nor neighbours) gets 0,
+    which freezes that unknown instead of producing inf.
     """
     h = coef.shape[1]
     w = coef.shape[2]
@@ -210,7 +207,7 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None
         b11 = a11[y]
         b22 = a22[y]
         wl1, wr1, wu1, wd1 = coef[W1_LEFT, y], coef[W1_RIGHT, y], coef[W1_UP, y], coef[W1_DOWN, y]
-        wl2, wr2, wu2, wd2 = coef[W2_LEFT, y], coef[W2_RIGHT, y], coef[W2_UP, y], coef[W2_DOWN, y]
+        wl2, wr2, wu2, wd2 = coef[w2, y], coef[w2 + 1, y], coef[w2 + 2, y], coef[w2 + 3, y]
         for x in range(w):
             d1 = b11[x] + wl1[x] + wr1[x] + wu1[x] + wd1[x]
             d2 = b22[x] + wl2[x] + wr2[x] + wu2[x] + wd2[x]
@@ -219,21 +216,26 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray) -> None
 
 
 @numba.njit(cache=True)
-def begin_warp(full: tuple[np.ndarray, ...], x1_full: np.ndarray, x2_full: np.ndarray,
-               ws: Workspace) -> None:
-    """Split a warp's full-grid inputs and both unknowns into compact form, once per warp.
+def begin_warp(x1_full: np.ndarray, x2_full: np.ndarray, ws: Workspace) -> None:
+    """Split both unknowns into compact form, once per warp.
 
-    ``full[k]`` goes to ``ws.inputs[k]`` (red, black); the unknowns to ``ws.x1``, ``ws.x2``
-    and their values at the warp (for the increments of the linearised data terms) to
-    ``ws.x1_0``, ``ws.x2_0``.
+    The unknowns go to ``ws.x1``, ``ws.x2`` and their values at the warp (for the
+    increments of the linearised data terms) to ``ws.x1_0``, ``ws.x2_0``. The data-term
+    inputs are written in compact form by each solver's own kernel (:func:`compact_index`).
     """
-    for k in range(len(full)):
-        redblack.split_field(full[k], ws.inputs[k, 0], ws.inputs[k, 1])
     redblack.split_field(x1_full, ws.x1[0], ws.x1[1])
     redblack.split_field(x2_full, ws.x2[0], ws.x2[1])
     for c in range(2):
         ws.x1_0[c][:] = ws.x1[c]
         ws.x2_0[c][:] = ws.x2[c]
+
+
+@numba.njit(cache=True, inline="always")
+def compact_index(y: int, x: int) -> tuple[int, int, int]:
+    """Colour, compact row and compact column of full-grid pixel (y, x)
+    (:mod:`processing.solvers.redblack`): kernels that compute a warp's data-term inputs
+    write them straight into ``Workspace.inputs[k, colour, row, column]``."""
+    return (x + y) & 1, y + 1, x // 2 + 1
 
 
 # The two problem-specific steps of :func:`lagged_iterations`. Each solver implements them
@@ -284,7 +286,6 @@ def implement(hook: Callable[..., None], terms_type: type) -> Callable[[Callable
 @numba.njit(cache=True)
 def lagged_iterations(
     terms: tuple,
-    full: tuple[np.ndarray, ...],
     x1_full: np.ndarray,
     x2_full: np.ndarray,
     ws: Workspace,
@@ -297,18 +298,16 @@ def lagged_iterations(
 ) -> None:
     """Inner fixed-point iterations of one warp: lag psi', solve by SOR; x1, x2 in place.
 
-    Everything stays in compact red-black layout for the whole warp: the full-grid
-    data-term inputs ``full`` are split once into ``ws.inputs``, psi', edge weights and
-    data terms are computed per colour, and the unknowns are merged back only at the end.
+    Everything stays in compact red-black layout for the whole warp: the caller has
+    written the data-term inputs into ``ws.inputs`` (compact, per colour), psi', edge
+    weights and data terms are computed per colour, and the unknowns are merged back only
+    at the end.
 
     Parameters
     ----------
     terms : NamedTuple
         The problem's data-term parameters; its type selects the :func:`data_terms` and
         :func:`after_solve` of that problem.
-    full : tuple of ndarray, shape (H, W), float32
-        The per-pixel inputs of the data terms at this warp (at most
-        :data:`processing.solvers.variational.N_INPUTS`).
     x1_full, x2_full : ndarray, shape (H, W), float32
         The two unknowns, refined in place.
     ws : Workspace
@@ -327,7 +326,7 @@ def lagged_iterations(
         SOR relaxation factor in (0, 2).
     """
     w = x1_full.shape[1]
-    begin_warp(full, x1_full, x2_full, ws)
+    begin_warp(x1_full, x2_full, ws)
     for _ in range(n_inner):
         if joint:
             lagged_psi((ws.x1, ws.x2), w, eps, ws.s2, ws.psi1)
@@ -338,15 +337,13 @@ def lagged_iterations(
             coef = ws.coefs[c]
             edge_weights(ws.psi1[c], ws.psi1[1 - c], ws.masks[c], weights[0], c, coef,
                          redblack.W1)
-            if joint:
-                coef[redblack.W2:redblack.W2 + 4] = coef[redblack.W1:redblack.W1 + 4]
-            else:
+            if not joint:  # a joint penaliser's unknowns share the W1 planes
                 edge_weights(ws.psi2[c], ws.psi2[1 - c], ws.masks[c], weights[1], c, coef,
                              redblack.W2)
             data_terms(terms, ws, c, eps)
-            finish_diagonals(coef, ws.a11[c], ws.a22[c])
+            finish_diagonals(coef, ws.a11[c], ws.a22[c], redblack.W1 if joint else redblack.W2)
         redblack.solve_sor(ws.coefs[0], ws.coefs[1], ws.x1[0], ws.x1[1], ws.x2[0], ws.x2[1],
-                           n_sor, omega)
+                           n_sor, omega, joint)
         after_solve(terms, ws)
     redblack.merge_field(ws.x1[0], ws.x1[1], x1_full)
     redblack.merge_field(ws.x2[0], ws.x2[1], x2_full)

@@ -159,64 +159,65 @@ def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
 
 
 @numba.njit(cache=True, fastmath=True)
-def _sweep(
+def _sweep_row(
     coef: np.ndarray,
     x1: np.ndarray,
     x2: np.ndarray,
     x1o: np.ndarray,
     x2o: np.ndarray,
+    yc: int,
     colour: int,
-    omega: float,
+    w2: int,
+    omega: np.float32,
 ) -> None:
-    """One over-relaxed Gauss-Seidel update of every pixel of one colour.
+    """One over-relaxed Gauss-Seidel update of the pixels of one colour in compact row ``yc``.
 
     A pixel's four neighbours all have the other colour (arrays ``x1o``, ``x2o``): up and
     down sit at the same compact column; left and right at columns ``xc - 1 + off`` and
     ``xc + off``, where ``off`` is the colour's column parity in that row. Taking 1-D row
     views with those offsets folded in leaves an inner loop over one index with no
     offsets and no bounds logic, which LLVM vectorises (about 5x faster than indexing the
-    3-D arrays directly).
+    3-D arrays directly). ``w2`` is the first edge-weight plane of unknown 2: :data:`W2`,
+    or :data:`W1` when both unknowns share one penaliser (the flow, Eq. 5), which saves
+    four planes of memory traffic per sweep.
     """
-    h = coef.shape[1] - 2
     n = coef.shape[2] - 2
-    om = np.float32(omega)  # keep the update in float32 SIMD lanes
-    for yc in range(1, h + 1):
-        off = (yc - 1 + colour) & 1
-        e = n + 1
-        inv1 = coef[INV_D1, yc, 1:e]
-        a12 = coef[A12, yc, 1:e]
-        inv2 = coef[INV_D2, yc, 1:e]
-        r1 = coef[R1, yc, 1:e]
-        r2 = coef[R2, yc, 1:e]
-        w1l = coef[W1_LEFT, yc, 1:e]
-        w1r = coef[W1_RIGHT, yc, 1:e]
-        w1u = coef[W1_UP, yc, 1:e]
-        w1d = coef[W1_DOWN, yc, 1:e]
-        w2l = coef[W2_LEFT, yc, 1:e]
-        w2r = coef[W2_RIGHT, yc, 1:e]
-        w2u = coef[W2_UP, yc, 1:e]
-        w2d = coef[W2_DOWN, yc, 1:e]
-        u = x1[yc, 1:e]
-        v = x2[yc, 1:e]
-        ul = x1o[yc, off:off + n]
-        ur = x1o[yc, off + 1:off + 1 + n]
-        uu = x1o[yc - 1, 1:e]
-        ud = x1o[yc + 1, 1:e]
-        vl = x2o[yc, off:off + n]
-        vr = x2o[yc, off + 1:off + 1 + n]
-        vu = x2o[yc - 1, 1:e]
-        vd = x2o[yc + 1, 1:e]
-        for i in range(n):
-            s1 = w1l[i] * ul[i] + w1r[i] * ur[i] + w1u[i] * uu[i] + w1d[i] * ud[i]
-            o1 = u[i]
-            n1 = o1 + om * ((r1[i] - a12[i] * v[i] + s1) * inv1[i] - o1)
-            u[i] = n1
-            s2 = w2l[i] * vl[i] + w2r[i] * vr[i] + w2u[i] * vu[i] + w2d[i] * vd[i]
-            o2 = v[i]
-            v[i] = o2 + om * ((r2[i] - a12[i] * n1 + s2) * inv2[i] - o2)
+    off = (yc - 1 + colour) & 1
+    e = n + 1
+    inv1 = coef[INV_D1, yc, 1:e]
+    a12 = coef[A12, yc, 1:e]
+    inv2 = coef[INV_D2, yc, 1:e]
+    r1 = coef[R1, yc, 1:e]
+    r2 = coef[R2, yc, 1:e]
+    w1l = coef[W1_LEFT, yc, 1:e]
+    w1r = coef[W1_RIGHT, yc, 1:e]
+    w1u = coef[W1_UP, yc, 1:e]
+    w1d = coef[W1_DOWN, yc, 1:e]
+    w2l = coef[w2, yc, 1:e]
+    w2r = coef[w2 + 1, yc, 1:e]
+    w2u = coef[w2 + 2, yc, 1:e]
+    w2d = coef[w2 + 3, yc, 1:e]
+    u = x1[yc, 1:e]
+    v = x2[yc, 1:e]
+    ul = x1o[yc, off:off + n]
+    ur = x1o[yc, off + 1:off + 1 + n]
+    uu = x1o[yc - 1, 1:e]
+    ud = x1o[yc + 1, 1:e]
+    vl = x2o[yc, off:off + n]
+    vr = x2o[yc, off + 1:off + 1 + n]
+    vu = x2o[yc - 1, 1:e]
+    vd = x2o[yc + 1, 1:e]
+    for i in range(n):
+        s1 = w1l[i] * ul[i] + w1r[i] * ur[i] + w1u[i] * uu[i] + w1d[i] * ud[i]
+        o1 = u[i]
+        n1 = o1 + omega * ((r1[i] - a12[i] * v[i] + s1) * inv1[i] - o1)
+        u[i] = n1
+        s2 = w2l[i] * vl[i] + w2r[i] * vr[i] + w2u[i] * vu[i] + w2d[i] * vd[i]
+        o2 = v[i]
+        v[i] = o2 + omega * ((r2[i] - a12[i] * n1 + s2) * inv2[i] - o2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, fastmath=True)
 def solve_sor(
     red: np.ndarray,
     black: np.ndarray,
@@ -226,20 +227,43 @@ def solve_sor(
     x2b: np.ndarray,
     n_iter: int,
     omega: float,
+    shared_weights: bool = False,
 ) -> None:
     """Run ``n_iter`` red-black SOR iterations on the compact system, updating x in place.
+
+    The iterations run as one wavefront over the rows (temporal blocking): at each step
+    the red half-sweep of iteration k updates row ``y - 2k`` and the black one row
+    ``y - 2k - 1``. Every update then sees exactly the neighbour values it sees when the
+    iterations run one after the other (a red row needs the black rows above, at and
+    below it from the previous iteration, a black row the red ones of this iteration), so
+    the result is the same to the bit; but the 2 n_iter + 2 rows in flight stay in the
+    core's cache instead of streaming all 13 coefficient planes from memory once per
+    half-sweep (measured at 320x240: 0.17 ms per iteration, memory-bound, before).
 
     Parameters
     ----------
     red, black : ndarray, shape (13, H+2, W2+2), float32
-        Coefficients from :func:`pack_system`.
+        Coefficients from :func:`pack_system` (or the lagged solvers' kernels).
     x1r, x1b, x2r, x2b : ndarray, shape (H+2, W2+2), float32
         Unknowns 1 and 2 in compact red/black form (initial guess in, solution out).
     n_iter : int
         Number of iterations (one iteration = a red sweep then a black sweep).
     omega : float
         Relaxation factor in (0, 2); 1 is Gauss-Seidel.
+    shared_weights : bool
+        Both unknowns diffuse with the edge weights of unknown 1 (planes W1..W1+3); the
+        W2 planes are then not read.
     """
-    for _ in range(n_iter):
-        _sweep(red, x1r, x2r, x1b, x2b, 0, omega)
-        _sweep(black, x1b, x2b, x1r, x2r, 1, omega)
+    h = red.shape[1] - 2
+    om = np.float32(omega)  # keep the update in float32 SIMD lanes
+    w2 = W1 if shared_weights else W2
+    for step in range(1, h + 2 * n_iter + 1):
+        for k in range(n_iter):
+            yr = step - 2 * k
+            if yr < 0:
+                break
+            if 1 <= yr <= h:
+                _sweep_row(red, x1r, x2r, x1b, x2b, yr, 0, w2, om)
+            yb = yr - 1
+            if 1 <= yb <= h:
+                _sweep_row(black, x1b, x2b, x1r, x2r, yb, 1, w2, om)

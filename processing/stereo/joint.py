@@ -49,6 +49,9 @@ from processing.validation import (
     check_same_shape,
 )
 
+#: The usable maps of a level where the depth gate blanked nothing.
+_NOTHING_BLANKED = np.zeros((0, 0), np.float32)
+
 
 class _DisparityTerms(NamedTuple):
     """Parameters of the data terms of Eq. 6 (select them in the shared lagged loop)."""
@@ -103,31 +106,19 @@ def _level_disparity(
     ``usable``: (left, right) float32 maps, 1 where the image carries information, 0 where
     it was blanked (:func:`processing.stereo.terms.usable_maps`); a data term with a
     sample on a blanked pixel is dropped."""
-    xx, yy = derivatives.pixel_grid(il0.shape)
     l0x = derivatives.dx(il0)
-    # Catmull-Rom warps (not OpenCV's a = -0.75 cubic, whose phase-dependent bias would
-    # show up directly in d'), each with the exact x-derivative of the interpolant.
-    warp_dx = derivatives.warp_dx_catmull_rom
-    # The flow is fixed: I_L(x + w, t1) and its derivative are warped once per level.
-    fx, fy = xx + u, yy + v
-    l1w, l1wx = warp_dx(il1, fx, fy)
-    m_l1 = derivatives.inside_mask(fx, fy)
-    e1, e3, e4, g0, g1, m1, m3, m4 = (np.empty(il0.shape, np.float32) for _ in range(8))
+    ws = variational.workspace(il0.shape)
+    ok_left, ok_right = (_NOTHING_BLANKED, _NOTHING_BLANKED) if usable is None else usable
     for _ in range(n_warps):
-        mx0 = xx - d
-        mx1 = fx - d - dp
-        r0w, r0wx = derivatives.warp_dx_catmull_rom_rows(ir0, mx0)
-        r1w, r1wx = warp_dx(ir1, mx1, fy)
-        disparity_terms.warp_residuals(il0, l0x, l1w, l1wx, m_l1, r0w, r0wx, r1w, r1wx, mx0,
-                                       mx1, fy, e1, e3, e4, g0, g1, m1, m3, m4)
-        if usable is not None:
-            disparity_terms.drop_blanked_terms(usable, yy, (fx, fy), mx0, mx1, (m1, m3, m4))
+        # Catmull-Rom samples (not OpenCV's a = -0.75 cubic, whose phase-dependent bias
+        # would show up directly in d'), each with the exact x-derivative of the
+        # interpolant, straight into the solver's compact inputs.
+        disparity_terms.split_residuals(il0, l0x, il1, ir0, ir1, u, v, d, dp, ok_left,
+                                        ok_right, ws.inputs)
         # Eq. 6 has one penaliser per field, psi(|grad d|^2) and psi(|grad d'|^2), each with
         # its own weight, so the two unknowns diffuse with different edge weights.
-        lagged.lagged_iterations(_DisparityTerms(right_temporal_weight, constant_mode),
-                                 (e1, e3, e4, g0, g1, m1, m3, m4), d, dp,
-                                 variational.workspace(il0.shape), (gamma1, gamma2), False, eps,
-                                 n_inner, n_sor, omega)
+        lagged.lagged_iterations(_DisparityTerms(right_temporal_weight, constant_mode), d, dp,
+                                 ws, (gamma1, gamma2), False, eps, n_inner, n_sor, omega)
 
 
 def joint_disparity(

@@ -13,6 +13,8 @@ import cv2
 import numba
 import numpy as np
 
+from processing.solvers import derivatives, lagged
+
 
 @numba.njit(cache=True, fastmath=True)
 def data_terms(
@@ -114,36 +116,58 @@ def data_terms(
             o2[x] = c12 * rd0[x] + c22 * rdp0[x] + (q3 * re3[x] + q4 * re4[x]) * b
 
 
+@numba.njit(inline="always")
+def _usable_at(ok: np.ndarray, x: float, y: float) -> float:
+    """``ok`` (H, W) at the rounded position (x, y), clamped to the image (outside is
+    masked by the inside tests of the data terms anyway)."""
+    h, w = ok.shape
+    xi = min(max(int(np.rint(x)), 0), w - 1)
+    yi = min(max(int(np.rint(y)), 0), h - 1)
+    return ok[yi, xi]
+
+
 @numba.njit(cache=True, fastmath=True)
-def warp_residuals(
+def split_residuals(
     il0: np.ndarray,
     l0x: np.ndarray,
-    l1w: np.ndarray,
-    l1wx: np.ndarray,
-    m_l1: np.ndarray,
-    r0w: np.ndarray,
-    r0wx: np.ndarray,
-    r1w: np.ndarray,
-    r1wx: np.ndarray,
-    mx0: np.ndarray,
-    mx1: np.ndarray,
-    my1: np.ndarray,
-    e1: np.ndarray,
-    e3: np.ndarray,
-    e4: np.ndarray,
-    g0: np.ndarray,
-    g1: np.ndarray,
-    m1: np.ndarray,
-    m3: np.ndarray,
-    m4: np.ndarray,
+    il1: np.ndarray,
+    ir0: np.ndarray,
+    ir1: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    d: np.ndarray,
+    dp: np.ndarray,
+    ok_left: np.ndarray,
+    ok_right: np.ndarray,
+    inputs: np.ndarray,
 ) -> None:
-    """Data terms E1, E3, E4 (Eq. 3) at the current warp, derivatives and masks, per pixel.
+    """Data terms E1, E3, E4 (Eq. 3) at the current warp, with derivatives and masks,
+    written straight into compact red-black form.
 
-    Inputs are the warped images (``r0w`` = I_R(x - d, t0), ``r1w`` = I_R(x + u - d - d',
-    y + v, t1), ``l1w`` = I_L(x + w, t1)) with their x-derivatives, the sample positions
-    and ``m_l1`` (1 where x + w is inside). The derivative of each warped right image is
-    averaged with that of the image it should match (Brox's symmetric linearisation, as
-    in the flow solver). A mask is 1 where every sample of that term lies inside.
+    Each pixel samples, with the Catmull-Rom cubic and the exact x-derivative of the
+    interpolant (:func:`processing.solvers.derivatives.catmull_rom_dx_at`),
+    ``r0`` = I_R(x - d, y, t0), ``r1`` = I_R(x + u - d - d', y + v, t1) and
+    ``l1`` = I_L(x + u, y + v, t1). The derivative of each warped right image is averaged
+    with that of the image it should match (Brox's symmetric linearisation, as in the
+    flow solver). A mask is 1 where every sample of its term lies inside the image and,
+    where the depth gate blanked pixels, on a usable pixel
+    (:func:`usable_maps`; E1 samples I_L(x) and r0, E3 r0 and r1, E4 r1 and l1).
+
+    Parameters
+    ----------
+    il0, l0x : ndarray, shape (H, W), float32
+        I_L(t0) and its x-derivative.
+    il1, ir0, ir1 : ndarray, shape (H, W), float32
+        I_L(t1), I_R(t0), I_R(t1).
+    u, v : ndarray, shape (H, W), float32
+        The left flow (Eq. 5), px.
+    d, dp : ndarray, shape (H, W), float32
+        Disparity and disparity change of the warp, px.
+    ok_left, ok_right : ndarray, float32
+        Usable maps (H, W) of the left and right view; empty (0, 0) arrays when nothing
+        was blanked.
+    inputs : ndarray, shape (N_INPUTS, 2, H+2, W2+2), float32
+        Receives, per colour, e1, e3, e4, g0, g1, m1, m3, m4 (:func:`data_terms`).
     """
     h, w = il0.shape
     wm = np.float32(w - 1)
@@ -151,24 +175,42 @@ def warp_residuals(
     zero = np.float32(0.0)
     one = np.float32(1.0)
     half = np.float32(0.5)
+    blanked = ok_left.size > 0
     for y in range(h):
-        a0, a0x, b1, b1x, ml = il0[y], l0x[y], l1w[y], l1wx[y], m_l1[y]
-        c0, c0x, c1, c1x = r0w[y], r0wx[y], r1w[y], r1wx[y]
-        p0, p1, q1 = mx0[y], mx1[y], my1[y]
-        o1, o3, o4, og0, og1 = e1[y], e3[y], e4[y], g0[y], g1[y]
-        om1, om3, om4 = m1[y], m3[y], m4[y]
+        fyr = np.float32(y)
+        row_r0 = ir0[y]
         for x in range(w):
-            in0 = one if (p0[x] >= zero and p0[x] <= wm) else zero
-            in1 = one if (p1[x] >= zero and p1[x] <= wm and q1[x] >= zero
-                          and q1[x] <= hm) else zero
-            o1[x] = c0[x] - a0[x]
-            o3[x] = c1[x] - c0[x]
-            o4[x] = c1[x] - b1[x]
-            og0[x] = half * (c0x[x] + a0x[x])
-            og1[x] = half * (c1x[x] + b1x[x])
-            om1[x] = in0
-            om3[x] = in0 * in1
-            om4[x] = in1 * ml[x]
+            c, yc, xc = lagged.compact_index(y, x)
+            fx = np.float32(x) + u[y, x]
+            fy = fyr + v[y, x]
+            p0 = np.float32(x) - d[y, x]
+            p1 = fx - d[y, x] - dp[y, x]
+            b1, b1x = derivatives.catmull_rom_dx_at(il1, fx, fy)
+            c0, c0x = derivatives.catmull_rom_dx_on_row(row_r0, p0)
+            c1, c1x = derivatives.catmull_rom_dx_at(ir1, p1, fy)
+            in_l1 = one if (fx >= zero and fx <= wm and fy >= zero and fy <= hm) else zero
+            in0 = one if (p0 >= zero and p0 <= wm) else zero
+            in1 = one if (p1 >= zero and p1 <= wm and fy >= zero and fy <= hm) else zero
+            m1 = in0
+            m3 = in0 * in1
+            m4 = in1 * in_l1
+            if blanked:
+                l0 = ok_left[y, x]
+                l1 = _usable_at(ok_left, fx, fy)
+                r0 = _usable_at(ok_right, p0, fyr)
+                r1 = _usable_at(ok_right, p1, fy)
+                m1 *= l0 * r0
+                m3 *= r0 * r1
+                m4 *= r1 * l1
+            a0 = il0[y, x]
+            inputs[0, c, yc, xc] = c0 - a0
+            inputs[1, c, yc, xc] = c1 - c0
+            inputs[2, c, yc, xc] = c1 - b1
+            inputs[3, c, yc, xc] = half * (c0x + l0x[y, x])
+            inputs[4, c, yc, xc] = half * (c1x + b1x)
+            inputs[5, c, yc, xc] = m1
+            inputs[6, c, yc, xc] = m3
+            inputs[7, c, yc, xc] = m4
 
 
 def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
@@ -201,36 +243,3 @@ def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
         bad = cv2.dilate((frac > 1e-3).astype(np.uint8), kernel)
         out.append(np.ascontiguousarray(1.0 - bad, dtype=np.float32))
     return out[0], out[1]
-
-
-def _sample_nearest(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """``a`` at the rounded positions (x, y), clamped to the image (outside is masked by
-    the inside tests of the data terms anyway)."""
-    h, w = a.shape
-    xi = np.clip(np.rint(x), 0, w - 1).astype(np.intp)
-    yi = np.clip(np.rint(y), 0, h - 1).astype(np.intp)
-    return a[yi, xi]
-
-
-def drop_blanked_terms(usable: tuple[np.ndarray, np.ndarray], rows: np.ndarray,
-                       flow_pos: tuple[np.ndarray, np.ndarray], mx0: np.ndarray,
-                       mx1: np.ndarray, masks: tuple[np.ndarray, np.ndarray, np.ndarray]
-                       ) -> None:
-    """Zero the data-term masks (m1, m3, m4) in place where a term samples a blanked pixel.
-
-    ``rows``: the y coordinate of every pixel, (H, W); ``flow_pos``: x + w; ``mx0``,
-    ``mx1``: the right images' sample columns at t0 and t1 (all px, this level).
-
-    E1 samples I_L(x) and I_R(x - d); E3 I_R(x - d) and I_R(x + w - d - d'); E4 the latter
-    and I_L(x + w) (Eq. 3a, c, d). Positions are those of the current warp.
-    """
-    ok_l, ok_r = usable
-    fx, fy = flow_pos
-    l0 = ok_l
-    l1 = _sample_nearest(ok_l, fx, fy)
-    r0 = _sample_nearest(ok_r, mx0, rows)
-    r1 = _sample_nearest(ok_r, mx1, fy)
-    m1, m3, m4 = masks
-    m1 *= l0 * r0
-    m3 *= r0 * r1
-    m4 *= r1 * l1
