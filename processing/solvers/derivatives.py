@@ -78,108 +78,109 @@ def _slopes(t: float) -> tuple[float, float, float, float]:
             _C15 * t2 - t)
 
 
+#: Border the Catmull-Rom samplers need around an image (:func:`pad_for_sampling`), px.
+SAMPLING_PAD = 2
+_U0 = np.uint64(0)
+_U1 = np.uint64(1)
+_U2 = np.uint64(2)
+_U3 = np.uint64(3)
+
+
+def pad_for_sampling(image: np.ndarray) -> np.ndarray:
+    """``image`` (H, W) as float32 with a replicated border of :data:`SAMPLING_PAD` px,
+    shape (H + 4, W + 4): the input of the Catmull-Rom samplers, whose 4 x 4 taps then
+    never need a bounds test (a clamped tap index and a replicated border give the same
+    value)."""
+    return cv2.copyMakeBorder(np.ascontiguousarray(image, dtype=np.float32), SAMPLING_PAD,
+                              SAMPLING_PAD, SAMPLING_PAD, SAMPLING_PAD, cv2.BORDER_REPLICATE)
+
+
 @numba.njit(inline="always")
-def _columns(img: np.ndarray, ix: int, iy: int, ty: float) -> tuple[float, float, float, float]:
-    """The 4 column values at rows iy-1..iy+2 interpolated vertically (border replicated)."""
-    h, w = img.shape
+def _clamped(padded: np.ndarray, x: float, y: float
+             ) -> tuple[float, float, np.uint64, np.uint64]:
+    """(x, y) clamped into the image inside ``padded``, and the padded row and column of
+    the first tap (iy - 1, ix - 1): unsigned, so that numba emits no wrap-around test per
+    load (measured: the sampler 1.6x faster)."""
+    fx = min(max(x, _ZERO), np.float32(padded.shape[1] - 2 * SAMPLING_PAD - 1))
+    fy = min(max(y, _ZERO), np.float32(padded.shape[0] - 2 * SAMPLING_PAD - 1))
+    return fx, fy, np.uint64(int(fy) + SAMPLING_PAD - 1), np.uint64(int(fx) + SAMPLING_PAD - 1)
+
+
+@numba.njit(inline="always")
+def _columns(padded: np.ndarray, r: np.uint64, c: np.uint64, ty: float
+             ) -> tuple[float, float, float, float]:
+    """The 4 tap columns c..c+3 interpolated vertically over rows r..r+3."""
     wy0, wy1, wy2, wy3 = _weights(ty)
-    x0 = max(ix - 1, 0)
-    x2 = min(ix + 1, w - 1)
-    x3 = min(ix + 2, w - 1)
-    r0 = img[max(iy - 1, 0)]
-    r1 = img[iy]
-    r2 = img[min(iy + 1, h - 1)]
-    r3 = img[min(iy + 2, h - 1)]
-    return (wy0 * r0[x0] + wy1 * r1[x0] + wy2 * r2[x0] + wy3 * r3[x0],
-            wy0 * r0[ix] + wy1 * r1[ix] + wy2 * r2[ix] + wy3 * r3[ix],
-            wy0 * r0[x2] + wy1 * r1[x2] + wy2 * r2[x2] + wy3 * r3[x2],
-            wy0 * r0[x3] + wy1 * r1[x3] + wy2 * r2[x3] + wy3 * r3[x3])
+    r1, r2, r3 = r + _U1, r + _U2, r + _U3
+    c1, c2, c3 = c + _U1, c + _U2, c + _U3
+    return (wy0 * padded[r, c] + wy1 * padded[r1, c] + wy2 * padded[r2, c]
+            + wy3 * padded[r3, c],
+            wy0 * padded[r, c1] + wy1 * padded[r1, c1] + wy2 * padded[r2, c1]
+            + wy3 * padded[r3, c1],
+            wy0 * padded[r, c2] + wy1 * padded[r1, c2] + wy2 * padded[r2, c2]
+            + wy3 * padded[r3, c2],
+            wy0 * padded[r, c3] + wy1 * padded[r1, c3] + wy2 * padded[r2, c3]
+            + wy3 * padded[r3, c3])
 
 
 @numba.njit(inline="always")
-def catmull_rom_at(img: np.ndarray, x: float, y: float) -> float:
-    """Catmull-Rom sample of ``img`` (H, W) at (x, y), border replicated (float32 maths).
-
-    The value path of :func:`warp_dx_catmull_rom` for one point, for fused kernels.
-    """
-    h, w = img.shape
-    fx = min(max(x, _ZERO), np.float32(w - 1))
-    fy = min(max(y, _ZERO), np.float32(h - 1))
-    ix = int(fx)
-    iy = int(fy)
-    q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
-    wx0, wx1, wx2, wx3 = _weights(fx - ix)
+def catmull_rom_at(padded: np.ndarray, x: float, y: float) -> float:
+    """Catmull-Rom sample at (x, y) of the image inside ``padded``
+    (:func:`pad_for_sampling`), border replicated, float32 maths: the value path of
+    :func:`warp_dx_catmull_rom` for one point, for fused kernels."""
+    fx, fy, r, c = _clamped(padded, x, y)
+    q0, q1, q2, q3 = _columns(padded, r, c, fy - np.float32(int(fy)))
+    wx0, wx1, wx2, wx3 = _weights(fx - np.float32(int(fx)))
     return wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
 
 
 @numba.njit(inline="always")
-def catmull_rom_dx_at(img: np.ndarray, x: float, y: float) -> tuple[float, float]:
-    """Catmull-Rom sample of ``img`` (H, W) at (x, y) and its exact x-derivative there
-    (0 where x is clamped to the border), border replicated, float32 maths: one point of
-    :func:`warp_dx_catmull_rom`, for fused kernels."""
-    h, w = img.shape
-    fx = min(max(x, _ZERO), np.float32(w - 1))
-    fy = min(max(y, _ZERO), np.float32(h - 1))
-    ix = int(fx)
-    iy = int(fy)
-    tx = fx - ix
-    q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
+def catmull_rom_dx_at(padded: np.ndarray, x: float, y: float) -> tuple[float, float]:
+    """:func:`catmull_rom_at` and the exact x-derivative of the interpolant there (0 where
+    x is clamped to the border): one point of :func:`warp_dx_catmull_rom`."""
+    fx, fy, r, c = _clamped(padded, x, y)
+    tx = fx - np.float32(int(fx))
+    q0, q1, q2, q3 = _columns(padded, r, c, fy - np.float32(int(fy)))
     wx0, wx1, wx2, wx3 = _weights(tx)
-    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-    if x != fx:  # replicated border: the sample is constant along x
-        return value, _ZERO
     dx0, dx1, dx2, dx3 = _slopes(tx)
-    return value, dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
+    slope = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+    # A clamped x is the replicated border: the sample is constant along x there.
+    return value, (slope if x == fx else _ZERO)
 
 
 @numba.njit(inline="always")
-def catmull_rom_dx_on_row(row: np.ndarray, x: float) -> tuple[float, float]:
-    """:func:`catmull_rom_dx_at` for a sample on a pixel row (``row`` = img[y], shape
-    (W,)): with an integer row the vertical weights are exactly (0, 1, 0, 0), so 4 samples
-    give the same result as 16."""
-    w = row.shape[0]
-    fx = min(max(x, _ZERO), np.float32(w - 1))
-    ix = int(fx)
-    tx = fx - ix
-    q0 = row[max(ix - 1, 0)]
-    q1 = row[ix]
-    q2 = row[min(ix + 1, w - 1)]
-    q3 = row[min(ix + 2, w - 1)]
+def catmull_rom_dx_on_row(padded: np.ndarray, x: float, y: int) -> tuple[float, float]:
+    """:func:`catmull_rom_dx_at` at a pixel row ``y``: with an integer row the vertical
+    weights are exactly (0, 1, 0, 0), so 4 samples give the same result as 16."""
+    fx = min(max(x, _ZERO), np.float32(padded.shape[1] - 2 * SAMPLING_PAD - 1))
+    tx = fx - np.float32(int(fx))
+    r = np.uint64(y + SAMPLING_PAD)
+    c = np.uint64(int(fx) + SAMPLING_PAD - 1)
+    q0 = padded[r, c]
+    q1 = padded[r, c + _U1]
+    q2 = padded[r, c + _U2]
+    q3 = padded[r, c + _U3]
     wx0, wx1, wx2, wx3 = _weights(tx)
-    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-    if x != fx:
-        return value, _ZERO
     dx0, dx1, dx2, dx3 = _slopes(tx)
-    return value, dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
+    slope = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
+    return value, (slope if x == fx else _ZERO)
 
 
 @numba.njit(cache=True, fastmath=True)
 def _catmull_rom_dx_rows(
-    img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, out: np.ndarray, out_dx: np.ndarray,
+    padded: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, out: np.ndarray,
+    out_dx: np.ndarray,
 ) -> None:
-    h, w = img.shape
-    hm = np.float32(h - 1)
-    wm = np.float32(w - 1)
+    h, w = map_x.shape
     for y in range(h):
         rx = map_x[y]
         ry = map_y[y]
         o = out[y]
         od = out_dx[y]
         for x in range(w):
-            fx = min(max(rx[x], _ZERO), wm)
-            fy = min(max(ry[x], _ZERO), hm)
-            ix = int(fx)
-            iy = int(fy)
-            tx = fx - ix
-            # Columns first (vertical interpolation), then the two horizontal kernels.
-            q0, q1, q2, q3 = _columns(img, ix, iy, fy - iy)
-            wx0, wx1, wx2, wx3 = _weights(tx)
-            o[x] = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-            if rx[x] == fx:
-                dx0, dx1, dx2, dx3 = _slopes(tx)
-                od[x] = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
-            else:  # replicated border: the sample is constant along x
-                od[x] = _ZERO
+            o[x], od[x] = catmull_rom_dx_at(padded, rx[x], ry[x])
 
 
 def warp_dx_catmull_rom(
@@ -203,49 +204,7 @@ def warp_dx_catmull_rom(
     """
     out = np.empty(map_x.shape, np.float32)
     out_dx = np.empty(map_x.shape, np.float32)
-    _catmull_rom_dx_rows(np.ascontiguousarray(image, dtype=np.float32),
+    _catmull_rom_dx_rows(pad_for_sampling(image),
                          np.ascontiguousarray(map_x, dtype=np.float32),
                          np.ascontiguousarray(map_y, dtype=np.float32), out, out_dx)
-    return out, out_dx
-
-
-@numba.njit(cache=True, fastmath=True)
-def _catmull_rom_dx_along_rows(img: np.ndarray, map_x: np.ndarray, out: np.ndarray,
-                               out_dx: np.ndarray) -> None:
-    h, w = img.shape
-    wm = np.float32(w - 1)
-    for y in range(h):
-        rx = map_x[y]
-        r = img[y]
-        o = out[y]
-        od = out_dx[y]
-        for x in range(w):
-            fx = min(max(rx[x], _ZERO), wm)
-            ix = int(fx)
-            tx = fx - ix
-            q0 = r[max(ix - 1, 0)]
-            q1 = r[ix]
-            q2 = r[min(ix + 1, w - 1)]
-            q3 = r[min(ix + 2, w - 1)]
-            wx0, wx1, wx2, wx3 = _weights(tx)
-            o[x] = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-            if rx[x] == fx:
-                dx0, dx1, dx2, dx3 = _slopes(tx)
-                od[x] = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
-            else:
-                od[x] = _ZERO
-
-
-def warp_dx_catmull_rom_rows(image: np.ndarray, map_x: np.ndarray
-                             ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`warp_dx_catmull_rom` for samples on the pixel rows (map_y = y).
-
-    With an integer row the vertical Catmull-Rom weights are exactly (0, 1, 0, 0), so the
-    result is the same as the general warp's, from 4 samples instead of 16 (the right image
-    at t0 is sampled this way in Eq. 3a: only the disparity moves it).
-    """
-    out = np.empty(map_x.shape, np.float32)
-    out_dx = np.empty(map_x.shape, np.float32)
-    _catmull_rom_dx_along_rows(np.ascontiguousarray(image, dtype=np.float32),
-                               np.ascontiguousarray(map_x, dtype=np.float32), out, out_dx)
     return out, out_dx

@@ -109,11 +109,12 @@ def _level_disparity(
     l0x = derivatives.dx(il0)
     ws = variational.workspace(il0.shape)
     ok_left, ok_right = (_NOTHING_BLANKED, _NOTHING_BLANKED) if usable is None else usable
+    pl1, pr0, pr1 = (derivatives.pad_for_sampling(a) for a in (il1, ir0, ir1))
     for _ in range(n_warps):
         # Catmull-Rom samples (not OpenCV's a = -0.75 cubic, whose phase-dependent bias
         # would show up directly in d'), each with the exact x-derivative of the
         # interpolant, straight into the solver's compact inputs.
-        disparity_terms.split_residuals(il0, l0x, il1, ir0, ir1, u, v, d, dp, ok_left,
+        disparity_terms.split_residuals(il0, l0x, pl1, pr0, pr1, u, v, d, dp, ok_left,
                                         ok_right, ws.inputs)
         # Eq. 6 has one penaliser per field, psi(|grad d|^2) and psi(|grad d'|^2), each with
         # its own weight, so the two unknowns diffuse with different edge weights.

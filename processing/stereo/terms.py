@@ -157,8 +157,9 @@ def split_residuals(
     ----------
     il0, l0x : ndarray, shape (H, W), float32
         I_L(t0) and its x-derivative.
-    il1, ir0, ir1 : ndarray, shape (H, W), float32
-        I_L(t1), I_R(t0), I_R(t1).
+    il1, ir0, ir1 : ndarray, shape (H + 4, W + 4), float32
+        I_L(t1), I_R(t0), I_R(t1), padded for the samplers
+        (:func:`processing.solvers.derivatives.pad_for_sampling`).
     u, v : ndarray, shape (H, W), float32
         The left flow (Eq. 5), px.
     d, dp : ndarray, shape (H, W), float32
@@ -178,7 +179,6 @@ def split_residuals(
     blanked = ok_left.size > 0
     for y in range(h):
         fyr = np.float32(y)
-        row_r0 = ir0[y]
         for x in range(w):
             c, yc, xc = lagged.compact_index(y, x)
             fx = np.float32(x) + u[y, x]
@@ -186,7 +186,7 @@ def split_residuals(
             p0 = np.float32(x) - d[y, x]
             p1 = fx - d[y, x] - dp[y, x]
             b1, b1x = derivatives.catmull_rom_dx_at(il1, fx, fy)
-            c0, c0x = derivatives.catmull_rom_dx_on_row(row_r0, p0)
+            c0, c0x = derivatives.catmull_rom_dx_on_row(ir0, p0, y)
             c1, c1x = derivatives.catmull_rom_dx_at(ir1, p1, fy)
             in_l1 = one if (fx >= zero and fx <= wm and fy >= zero and fy <= hm) else zero
             in0 = one if (p0 >= zero and p0 <= wm) else zero

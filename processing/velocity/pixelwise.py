@@ -24,7 +24,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from processing.solvers.derivatives import catmull_rom_at
+from processing.solvers.derivatives import catmull_rom_at, pad_for_sampling
 from processing.validation import check_positive
 
 
@@ -196,7 +196,10 @@ def velocity_and_quality(
     valid = np.empty(shape, np.bool_)
     u_sf = np.empty(shape, np.float32)
     u_sf_valid = np.empty(shape, np.bool_)
-    _velocity_quality_rows(*f32, float(principal_point[0]), float(principal_point[1]), s, b, t,
+    # The three images U_SF samples go to the Catmull-Rom samplers padded.
+    padded = [pad_for_sampling(a) for a in f32[4:]]
+    _velocity_quality_rows(*f32[:4], *padded, float(principal_point[0]),
+                           float(principal_point[1]), s, b, t,
                            float(gamma1), float(gamma2), float(eps), qmask, velocity, position,
                            valid, u_sf, u_sf_valid)
     return velocity, position, valid, u_sf, u_sf_valid
