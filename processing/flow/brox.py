@@ -29,7 +29,7 @@ from processing.validation import (
 )
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _compact_data_terms(
     iz: np.ndarray,
     ix: np.ndarray,
@@ -136,7 +136,7 @@ def _flow_after_solve(terms: _FlowTerms, ws: variational.Workspace) -> None:
     """Nothing: the flow is the plain lagged solution of Eq. 5."""
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _split_flow_inputs(
     i0: np.ndarray,
     i1w: np.ndarray,

@@ -16,7 +16,7 @@ import numpy as np
 from processing.preprocess.translation import translate_into
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _gauss_newton_sums(
     resid: np.ndarray, gx: np.ndarray, gy: np.ndarray, border: int, c: float
 ) -> tuple[float, float, float, float, float]:
@@ -28,26 +28,33 @@ def _gauss_newton_sums(
     """
     h, w = resid.shape
     inv_c2 = np.float32(1.0 / (c * c))
-    a11 = np.float32(0.0)
-    a12 = np.float32(0.0)
-    a22 = np.float32(0.0)
-    b1 = np.float32(0.0)
-    b2 = np.float32(0.0)
+    one = np.float32(1.0)
+    a11 = a12 = a22 = b1 = b2 = np.float32(0.0)
     for i in range(border, h - border):
-        for j in range(border, w - border):
-            r = resid[i, j]
-            wgt = np.float32(1.0) / (np.float32(1.0) + r * r * inv_c2)
-            ggx = gx[i, j]
-            ggy = gy[i, j]
-            a11 += wgt * ggx * ggx
-            a12 += wgt * ggx * ggy
-            a22 += wgt * ggy * ggy
-            b1 += wgt * ggx * r
-            b2 += wgt * ggy * r
+        # Row views and per-row partial sums: a loop LLVM vectorises.
+        r = resid[i, border:w - border]
+        x = gx[i, border:w - border]
+        y = gy[i, border:w - border]
+        s11 = s12 = s22 = t1 = t2 = np.float32(0.0)
+        for j in range(r.shape[0]):
+            rr = r[j]
+            wgt = one / (one + rr * rr * inv_c2)
+            wx = wgt * x[j]
+            wy = wgt * y[j]
+            s11 += wx * x[j]
+            s12 += wx * y[j]
+            s22 += wy * y[j]
+            t1 += wx * rr
+            t2 += wy * rr
+        a11 += s11
+        a12 += s12
+        a22 += s22
+        b1 += t1
+        b2 += t2
     return float(a11), float(a12), float(a22), float(b1), float(b2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float,
                   sample: np.ndarray) -> float:
     """c = robust_scale x 1.4826 x median|r| over the inner region (every 3rd pixel);
@@ -66,7 +73,7 @@ def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float,
     return robust_scale * 1.4826 * float(np.median(sample[:n])) + 1e-12
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                        border: int, dx: float, dy: float, robust_scale: float, max_iter: int,
                        tol: float) -> tuple[float, float, bool, float]:

@@ -11,7 +11,7 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _cubic_weights(frac: float) -> tuple[float, float, float, float]:
     """Keys cubic-convolution weights (a = -0.5) for taps at -1, 0, 1, 2 and offset ``frac``
     in [0, 1)."""
@@ -21,7 +21,7 @@ def _cubic_weights(frac: float) -> tuple[float, float, float, float]:
             -1.5 * t3 + 2.0 * t2 + 0.5 * frac, 0.5 * t3 - 0.5 * t2)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _reflect(i: int, n: int) -> int:
     """Index ``i`` mirrored into [0, n) without repeating the edge (OpenCV's
     BORDER_REFLECT_101); |i| < 2n - 1."""
@@ -32,7 +32,7 @@ def _reflect(i: int, n: int) -> int:
     return i
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def translate_into(image: np.ndarray, dx: float, dy: float, out: np.ndarray,
                    rows: np.ndarray, buf: np.ndarray) -> None:
     """``out(x, y) = image(x + dx, y + dy)``: separable bicubic, mirrored borders.
@@ -62,13 +62,18 @@ def translate_into(image: np.ndarray, dx: float, dy: float, out: np.ndarray,
     # mirror of the rows' interpolations, so the vertical pass mirrors row indices.
     for r in range(h):
         src = image[r]
-        for j in range(w + 2 * pad):
+        buf[pad:pad + w] = src
+        for j in range(pad):
             buf[j] = src[_reflect(j - pad, w)]
+            buf[pad + w + j] = src[_reflect(w + j, w)]
         o = rows[r]
         b = pad + ix - 1
+        # Views, not buf[b + x + k]: a signed index costs a wrap-around test per load and
+        # keeps LLVM from vectorising (measured: 2x slower).
+        t0, t1 = buf[b:b + w], buf[b + 1:b + 1 + w]
+        t2, t3 = buf[b + 2:b + 2 + w], buf[b + 3:b + 3 + w]
         for x in range(w):
-            o[x] = (((fx0 * buf[b + x]) + fx1 * buf[b + x + 1]) + fx2 * buf[b + x + 2]
-                    + fx3 * buf[b + x + 3])
+            o[x] = (((fx0 * t0[x]) + fx1 * t1[x]) + fx2 * t2[x]) + fx3 * t3[x]
     for y in range(h):
         r0 = rows[_reflect(y + iy - 1, h)]
         r1 = rows[_reflect(y + iy, h)]

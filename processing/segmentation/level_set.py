@@ -19,7 +19,7 @@ import numpy as np
 VAR_FLOOR = np.array([1e-4, 1e-2, 1e-2])
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _pad_edge(phi: np.ndarray, out: np.ndarray) -> None:
     """Copy phi into out[1:-1, 1:-1] and replicate its border (Neumann condition)."""
     h, w = phi.shape
@@ -33,7 +33,7 @@ def _pad_edge(phi: np.ndarray, out: np.ndarray) -> None:
         out[h + 1, j] = out[h, j]
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def chan_vese_sweeps(
     phi: np.ndarray, force: np.ndarray, nu: float, dt: float, eps: float, n_sweeps: int
 ) -> None:
@@ -100,7 +100,7 @@ def dirac(phi: np.ndarray, eps: float = 1.0) -> np.ndarray:
     return (eps / (np.pi * (eps * eps + phi * phi))).astype(np.float32)
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
+@numba.njit(cache=True, fastmath=True, error_model="numpy", inline="always")
 def _atan(z: float) -> float:
     """arctan with |error| <= 1.2e-5 rad (Abramowitz & Stegun 4.4.47), branch-light.
 
@@ -116,7 +116,7 @@ def _atan(z: float) -> float:
     return r if z >= 0 else -r
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _region_moments(
     features: np.ndarray, phi: np.ndarray, eps: float, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +196,7 @@ def _region_moments(
     return gas, bg
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _apply_force(
     features: np.ndarray,
     mean_g: np.ndarray,

@@ -168,7 +168,7 @@ def catmull_rom_dx_on_row(padded: np.ndarray, x: float, y: int) -> tuple[float, 
     return value, (slope if x == fx else _ZERO)
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _catmull_rom_dx_rows(
     padded: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, out: np.ndarray,
     out_dx: np.ndarray,

@@ -35,7 +35,7 @@ from processing.solvers.redblack import (
 Workspace = tuple
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def border_masks(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Edge-existence masks (4, H+2, W2+2) for red and black: left, right, up, down.
 
@@ -58,7 +58,7 @@ def border_masks(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     return red, black
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _fill_neumann_ghosts(red: np.ndarray, black: np.ndarray, width: int) -> None:
     """Copy border pixels into the halo neighbours that central differences read.
 
@@ -83,7 +83,7 @@ def _fill_neumann_ghosts(red: np.ndarray, black: np.ndarray, width: int) -> None
     red[last + 1, :] = black[last, :]
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _gradient_sq(own: np.ndarray, other: np.ndarray, colour: int, out: np.ndarray) -> None:
     """Add |grad f|^2 at the pixels of one colour to ``out`` (centred differences).
 
@@ -106,7 +106,7 @@ def _gradient_sq(own: np.ndarray, other: np.ndarray, colour: int, out: np.ndarra
             o[i] += gx * gx + gy * gy
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> None:
     """out = 1 / sqrt(s2 + eps^2) elementwise on compact arrays (lagged psi')."""
     e2 = np.float32(eps * eps)
@@ -118,7 +118,7 @@ def _charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> None:
             o[x] = np.float32(1.0) / np.sqrt(a[x] + e2)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def lagged_psi(
     fields: tuple[tuple[np.ndarray, np.ndarray], ...],
     width: int,
@@ -152,7 +152,7 @@ def lagged_psi(
         _charbonnier_prime(s2, eps, psi[c])
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def edge_weights(
     psi_own: np.ndarray,
     psi_other: np.ndarray,
@@ -190,7 +190,7 @@ def edge_weights(
             wd[i] = half * (p[i] + pd[i]) * md[i]
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int) -> None:
     """Store 1 / (A11 + sum w1) and 1 / (A22 + sum w2) in the INV_D planes of ``coef``.
 
@@ -215,7 +215,7 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int
             i2[x] = np.float32(1.0) / d2 if d2 > 0 else np.float32(0.0)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def begin_warp(x1_full: np.ndarray, x2_full: np.ndarray, ws: Workspace) -> None:
     """Split both unknowns into compact form, once per warp.
 
@@ -230,7 +230,7 @@ def begin_warp(x1_full: np.ndarray, x2_full: np.ndarray, ws: Workspace) -> None:
         ws.x2_0[c][:] = ws.x2[c]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def compact_index(y: int, x: int) -> tuple[int, int, int]:
     """Colour, compact row and compact column of full-grid pixel (y, x)
     (:mod:`processing.solvers.redblack`): kernels that compute a warp's data-term inputs
@@ -283,7 +283,7 @@ def implement(hook: Callable[..., None], terms_type: type) -> Callable[[Callable
     return register
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def lagged_iterations(
     terms: tuple,
     x1_full: np.ndarray,

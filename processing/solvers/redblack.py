@@ -40,20 +40,20 @@ W2_LEFT, W2_RIGHT, W2_UP, W2_DOWN = 9, 10, 11, 12
 N_PLANES = 13
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def compact_shape(height: int, width: int) -> tuple[int, int]:
     """Shape (H+2, W2+2) of one colour's compact array, halo included."""
     return height + 2, (width + 1) // 2 + 2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def empty_system(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Allocate the red and black coefficient arrays, shape (13, H+2, W2+2) each."""
     shape = (N_PLANES, height + 2, (width + 1) // 2 + 2)
     return np.zeros(shape, np.float32), np.zeros(shape, np.float32)
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _pack_colour(
     a11: np.ndarray,
     a12: np.ndarray,
@@ -97,7 +97,7 @@ def _pack_colour(
             c[W2_DOWN, yc, xc] = d2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def pack_system(
     a11: np.ndarray,
     a12: np.ndarray,
@@ -134,7 +134,7 @@ def pack_system(
     _pack_colour(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, black, 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
     """Scatter a full-grid field (H, W) into compact red/black arrays (H+2, W2+2), in place."""
     h, w = field.shape
@@ -147,7 +147,7 @@ def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
             black[y + 1, x // 2 + 1] = field[y, x]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
     """Gather compact red/black arrays back into a full-grid field ``out`` (H, W), in place."""
     h, w = out.shape
@@ -158,7 +158,7 @@ def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
             out[y, x] = black[y + 1, x // 2 + 1]
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _sweep_row(
     coef: np.ndarray,
     x1: np.ndarray,
@@ -217,7 +217,7 @@ def _sweep_row(
         v[i] = o2 + omega * ((r2[i] - a12[i] * n1 + s2) * inv2[i] - o2)
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def solve_sor(
     red: np.ndarray,
     black: np.ndarray,

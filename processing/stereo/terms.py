@@ -16,7 +16,7 @@ import numpy as np
 from processing.solvers import derivatives, lagged
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def data_terms(
     e1: np.ndarray,
     e3: np.ndarray,
@@ -126,7 +126,7 @@ def _usable_at(ok: np.ndarray, x: float, y: float) -> float:
     return ok[yi, xi]
 
 
-@numba.njit(cache=True, fastmath=True)
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
 def split_residuals(
     il0: np.ndarray,
     l0x: np.ndarray,

@@ -51,7 +51,7 @@ def _grad_sq(f: np.ndarray, y: int, x: int) -> float:
     return gx * gx + gy * gy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _velocity_quality_rows(
     flow: np.ndarray, d: np.ndarray, dp: np.ndarray, il0: np.ndarray, ir0: np.ndarray,
     il1: np.ndarray, ir1: np.ndarray, x0: float, y0: float, s: float, b: float, dt: float,
