@@ -216,16 +216,22 @@ def _normalised(ref: np.ndarray, mov: np.ndarray, smooth_sigma: float
     ValueError
         A flat reference (no spread).
     """
-    spread = float(ref.std())
+    # One pass with float64 sums (numpy's mean and std take three).
+    mean, std = cv2.meanStdDev(ref)
+    offset, spread = float(mean[0, 0]), float(std[0, 0])
     if not spread > 0:
         raise ValueError("reference image has no texture: the translation cannot be measured")
-    offset = float(ref.mean())
-    ref = (ref - offset) / spread
-    mov = (mov - offset) / spread
-    if smooth_sigma > 0:
-        ref = cv2.GaussianBlur(ref, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
-        mov = cv2.GaussianBlur(mov, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
-    return ref, mov
+
+    def normalise(a: np.ndarray) -> np.ndarray:
+        # The blur is linear and keeps a constant: blur first, then the affine map, in
+        # place (one temporary less per frame).
+        out = (cv2.GaussianBlur(a, (0, 0), smooth_sigma, borderType=cv2.BORDER_REFLECT_101)
+               if smooth_sigma > 0 else a.copy())
+        out -= np.float32(offset)
+        out *= np.float32(1.0 / spread)
+        return out
+
+    return normalise(ref), normalise(mov)
 
 
 Refinement = Callable[[tuple[float, float]], tuple[tuple[float, float], bool, float]]

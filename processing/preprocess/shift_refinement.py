@@ -110,6 +110,26 @@ def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.
     return dx, dy, False, c
 
 
+@numba.njit(cache=True, fastmath=True, error_model="numpy")
+def _gradient_moments(gx: np.ndarray, gy: np.ndarray, border: int
+                      ) -> tuple[float, float, float]:
+    """sum gx^2, sum gy^2, sum gx gy over the inner region (``border`` px left out), with
+    float64 sums of float32 rows (the texture test compares their determinant with a
+    tiny threshold)."""
+    h, w = gx.shape
+    sxx = syy = sxy = 0.0
+    for i in range(border, h - border):
+        x = gx[i, border:w - border]
+        y = gy[i, border:w - border]
+        for j in range(x.shape[0]):
+            a = np.float64(x[j])
+            b = np.float64(y[j])
+            sxx += a * a
+            syy += b * b
+            sxy += a * b
+    return sxx, syy, sxy
+
+
 @dataclass(frozen=True)
 class Level:
     """One resolution of the refinement: the (smoothed, normalised) images, the fixed
@@ -129,10 +149,7 @@ def make_level(ref: np.ndarray, mov: np.ndarray, border: int) -> Level | None:
     h, w = ref.shape
     gx = cv2.Sobel(ref, cv2.CV_32F, 1, 0, ksize=3, scale=1.0 / 8.0)
     gy = cv2.Sobel(ref, cv2.CV_32F, 0, 1, ksize=3, scale=1.0 / 8.0)
-    inner = (slice(border, h - border), slice(border, w - border))
-    sxx = float(np.square(gx[inner], dtype=np.float64).sum())
-    syy = float(np.square(gy[inner], dtype=np.float64).sum())
-    sxy = float((gx[inner].astype(np.float64) * gy[inner]).sum())
+    sxx, syy, sxy = _gradient_moments(gx, gy, border)
     n_inner = (h - 2 * border) * (w - 2 * border)
     if sxx * syy - sxy * sxy <= 1e-12 * n_inner**2:
         return None
