@@ -171,20 +171,28 @@ def _split_flow_inputs(
     a1x, a1y, a1xx, a1xy, a1yy = d1
     for y in range(h):
         fy = np.float32(y)
+        ra, rb = (a0x[y], a0y[y], a0xx[y], a0xy[y], a0yy[y]), (a1x[y], a1y[y], a1xx[y],
+                                                               a1xy[y], a1yy[y])
+        r0, r1, ru, rv = i0[y], i1w[y], u[y], v[y]
+        # Column x of row y has colour (x + y) & 1 and compact column x // 2 + 1: the even
+        # columns go to one colour's row, the odd ones to the other's, both contiguous.
+        even = inputs[:, y & 1, y + 1, 1:]
+        odd = inputs[:, 1 - (y & 1), y + 1, 1:]
         for x in range(w):
-            c, yc, xc = lagged.compact_index(y, x)
-            mx = np.float32(x) + u[y, x]
-            my = fy + v[y, x]
-            inputs[0, c, yc, xc] = i1w[y, x] - i0[y, x]
-            inputs[1, c, yc, xc] = half * (a1x[y, x] + a0x[y, x])
-            inputs[2, c, yc, xc] = half * (a1y[y, x] + a0y[y, x])
-            inputs[3, c, yc, xc] = a1x[y, x] - a0x[y, x]
-            inputs[4, c, yc, xc] = a1y[y, x] - a0y[y, x]
-            inputs[5, c, yc, xc] = half * (a1xx[y, x] + a0xx[y, x])
-            inputs[6, c, yc, xc] = half * (a1xy[y, x] + a0xy[y, x])
-            inputs[7, c, yc, xc] = half * (a1yy[y, x] + a0yy[y, x])
+            o = even if (x & 1) == 0 else odd
+            j = x >> 1
+            mx = np.float32(x) + ru[x]
+            my = fy + rv[x]
+            o[0, j] = r1[x] - r0[x]
+            o[1, j] = half * (rb[0][x] + ra[0][x])
+            o[2, j] = half * (rb[1][x] + ra[1][x])
+            o[3, j] = rb[0][x] - ra[0][x]
+            o[4, j] = rb[1][x] - ra[1][x]
+            o[5, j] = half * (rb[2][x] + ra[2][x])
+            o[6, j] = half * (rb[3][x] + ra[3][x])
+            o[7, j] = half * (rb[4][x] + ra[4][x])
             inside = mx >= zero and mx <= wm and my >= zero and my <= hm
-            inputs[8, c, yc, xc] = one if inside else zero
+            o[8, j] = one if inside else zero
 
 
 def _derivatives(image: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -141,10 +141,15 @@ def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
     red[:] = 0.0
     black[:] = 0.0
     for y in range(h):
-        for x in range(y & 1, w, 2):
-            red[y + 1, x // 2 + 1] = field[y, x]
-        for x in range((y + 1) & 1, w, 2):
-            black[y + 1, x // 2 + 1] = field[y, x]
+        src = field[y]
+        # Row views: the even columns go to one colour's row, the odd ones to the other's.
+        even = (red if (y & 1) == 0 else black)[y + 1, 1:]
+        odd = (black if (y & 1) == 0 else red)[y + 1, 1:]
+        for j in range(w >> 1):
+            even[j] = src[2 * j]
+            odd[j] = src[2 * j + 1]
+        if w & 1:
+            even[w >> 1] = src[w - 1]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -152,10 +157,14 @@ def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
     """Gather compact red/black arrays back into a full-grid field ``out`` (H, W), in place."""
     h, w = out.shape
     for y in range(h):
-        for x in range(y & 1, w, 2):
-            out[y, x] = red[y + 1, x // 2 + 1]
-        for x in range((y + 1) & 1, w, 2):
-            out[y, x] = black[y + 1, x // 2 + 1]
+        dst = out[y]
+        even = (red if (y & 1) == 0 else black)[y + 1, 1:]
+        odd = (black if (y & 1) == 0 else red)[y + 1, 1:]
+        for j in range(w >> 1):
+            dst[2 * j] = even[j]
+            dst[2 * j + 1] = odd[j]
+        if w & 1:
+            dst[w - 1] = even[w >> 1]
 
 
 @numba.njit(cache=True, fastmath=True, error_model="numpy")

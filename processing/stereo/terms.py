@@ -13,7 +13,7 @@ import cv2
 import numba
 import numpy as np
 
-from processing.solvers import derivatives, lagged
+from processing.solvers import derivatives
 
 
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
@@ -179,8 +179,13 @@ def split_residuals(
     blanked = ok_left.size > 0
     for y in range(h):
         fyr = np.float32(y)
+        # Column x goes to compact column x // 2 + 1 of colour (x + y) & 1: even columns
+        # to one colour's row, odd ones to the other's.
+        even = inputs[:, y & 1, y + 1, 1:]
+        odd = inputs[:, 1 - (y & 1), y + 1, 1:]
         for x in range(w):
-            c, yc, xc = lagged.compact_index(y, x)
+            o = even if (x & 1) == 0 else odd
+            j = x >> 1
             fx = np.float32(x) + u[y, x]
             fy = fyr + v[y, x]
             p0 = np.float32(x) - d[y, x]
@@ -203,14 +208,14 @@ def split_residuals(
                 m3 *= r0 * r1
                 m4 *= r1 * l1
             a0 = il0[y, x]
-            inputs[0, c, yc, xc] = c0 - a0
-            inputs[1, c, yc, xc] = c1 - c0
-            inputs[2, c, yc, xc] = c1 - b1
-            inputs[3, c, yc, xc] = half * (c0x + l0x[y, x])
-            inputs[4, c, yc, xc] = half * (c1x + b1x)
-            inputs[5, c, yc, xc] = m1
-            inputs[6, c, yc, xc] = m3
-            inputs[7, c, yc, xc] = m4
+            o[0, j] = c0 - a0
+            o[1, j] = c1 - c0
+            o[2, j] = c1 - b1
+            o[3, j] = half * (c0x + l0x[y, x])
+            o[4, j] = half * (c1x + b1x)
+            o[5, j] = m1
+            o[6, j] = m3
+            o[7, j] = m4
 
 
 def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
