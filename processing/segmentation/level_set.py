@@ -225,9 +225,9 @@ def _apply_force(
             force[i, j] = min(max(force[i, j], -clip), clip)
 
 
-def region_force(
-    features: np.ndarray, phi: np.ndarray, eps: float, force_clip: float, force: np.ndarray
-) -> None:
+@numba.njit(cache=True, error_model="numpy")
+def region_force(features: np.ndarray, phi: np.ndarray, eps: float, force_clip: float,
+                 force: np.ndarray) -> None:
     """log q_g - log q_bg per pixel with the Gaussian region models of Eq. 9 (into ``force``).
 
     Parameters
@@ -246,11 +246,32 @@ def region_force(
     # 20k samples estimate a mean and a variance well; subsample large levels for speed.
     stride = max(1, int(np.sqrt(phi.size / 20000.0)))
     gas, bg = _region_moments(features, phi, eps, stride)
-    wg = gas[:, 0] + 1e-9
-    wb = bg[:, 0] + 1e-9
-    mean_g = gas[:, 1] / wg
-    mean_b = bg[:, 1] / wb
-    var_g = np.maximum(gas[:, 2] / wg - mean_g**2, VAR_FLOOR)
-    var_b = np.maximum(bg[:, 2] / wb - mean_b**2, VAR_FLOOR)
-    cst = float(0.5 * np.sum(np.log(var_b / var_g)))
-    _apply_force(features, mean_g, mean_b, 0.5 / var_g, 0.5 / var_b, cst, force_clip, force)
+    nf = features.shape[0]
+    mean_g = np.empty(nf)
+    mean_b = np.empty(nf)
+    a_g = np.empty(nf)
+    a_b = np.empty(nf)
+    cst = 0.0
+    for k in range(nf):
+        wg = gas[k, 0] + 1e-9
+        wb = bg[k, 0] + 1e-9
+        mean_g[k] = gas[k, 1] / wg
+        mean_b[k] = bg[k, 1] / wb
+        var_g = max(gas[k, 2] / wg - mean_g[k] ** 2, VAR_FLOOR[k])
+        var_b = max(bg[k, 2] / wb - mean_b[k] ** 2, VAR_FLOOR[k])
+        cst += 0.5 * np.log(var_b / var_g)
+        a_g[k] = 0.5 / var_g
+        a_b[k] = 0.5 / var_b
+    _apply_force(features, mean_g, mean_b, a_g, a_b, cst, force_clip, force)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def descend(features: np.ndarray, phi: np.ndarray, nu: float, dt: float, eps: float,
+            force_clip: float, n_updates: int, sweeps_per_update: int) -> None:
+    """``n_updates`` times: re-estimate the region models (:func:`region_force`), then
+    ``sweeps_per_update`` sweeps of phi (:func:`chan_vese_sweeps`); phi (H, W) in place,
+    ``features`` (3, H, W) as in :func:`region_force`."""
+    force = np.empty_like(phi)
+    for _ in range(n_updates):
+        region_force(features, phi, eps, force_clip, force)
+        chan_vese_sweeps(phi, force, nu, dt, eps, sweeps_per_update)

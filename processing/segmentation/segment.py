@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from processing.segmentation.level_set import chan_vese_sweeps, region_force
+from processing.segmentation.level_set import descend
 from processing.validation import as_float_image, check_positive
 
 #: Smallest accepted image side in pixels.
@@ -207,11 +207,8 @@ def segment_gas(
         if phi.shape != feats.shape[1:]:
             phi = cv2.resize(phi, (feats.shape[2], feats.shape[1]), interpolation=cv2.INTER_LINEAR)
         phi = np.ascontiguousarray(phi, dtype=np.float32)
-        force = np.empty_like(phi)
-        n_updates = int(iterations[min(level, len(iterations) - 1)])
-        for _ in range(n_updates):
-            region_force(feats, phi, eps, force_clip, force)
-            chan_vese_sweeps(phi, force, nu, dt, eps, int(sweeps_per_update))
+        descend(feats, phi, nu, dt, eps, force_clip,
+                int(iterations[min(level, len(iterations) - 1)]), int(sweeps_per_update))
 
     # Which side is gas: larger mean activity (module docstring).
     a, m, s_i, s_w = _activity(d, fl)
