@@ -121,6 +121,23 @@ def test_flow_error_reaches_the_change_only_through_e3(plane) -> None:
     assert abs(float(np.mean(dp[REGION])) - scene.d_change) < 0.02
 
 
+def test_shared_pyramids_give_the_same_fields(plane) -> None:
+    # The chain hands one pyramid cache to the flow and the joint solver: the second takes
+    # the left images' levels from it and must solve exactly as without it.
+    from processing.solvers.variational import PyramidCache
+
+    scene, _ = plane
+    cache = PyramidCache()
+    flow = brox_optical_flow(scene.il0, scene.il1, pyramid_cache=cache)
+    alone = joint_disparity(scene.il0, scene.ir0, scene.il1, scene.ir1, flow, d0=60.0)
+    shared = joint_disparity(scene.il0, scene.ir0, scene.il1, scene.ir1, flow, d0=60.0,
+                             pyramid_cache=cache)
+    np.testing.assert_array_equal(alone[0], shared[0])
+    np.testing.assert_array_equal(alone[1], shared[1])
+    # the flow's two pyramids and the right images' two, not six
+    assert len(cache) == 4
+
+
 def test_far_initialisation_fails_visibly(plane) -> None:
     # d0 = 0 for a 78 px disparity (a quarter of the width) is outside the method's reach:
     # the paper's reason for giving d0. The test documents that the setting matters.

@@ -50,6 +50,7 @@ from processing.preprocess.differential import (
     scale_samples,
 )
 from processing.segmentation.segment import segment_gas
+from processing.solvers.variational import PyramidCache
 from processing.stereo.coherence import smooth_disparity_change
 from processing.stereo.joint import joint_disparity
 from processing.stereo.sgm import sgbm_initial_disparity
@@ -115,11 +116,13 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     box = _region(pl, params, warm, stream)
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
                                                  stream.change_history(follows))
-    flow = _flow(cl, params, cwarm)
+    pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
+    flow = _flow(cl, params, cwarm, pyramids)
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
-    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history)
+    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history,
+                       pyramids)
     flow, d, dd = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
     mask, phi = _segment(box, pl.diff0, flow, params)
@@ -286,11 +289,11 @@ def _segment(box: Box | None, diff: np.ndarray, flow: np.ndarray, params: ChainP
     return seg.mask & inside, np.where(inside, seg.phi, -np.abs(seg.phi) - np.float32(1e-3))
 
 
-def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None
-          ) -> np.ndarray:
+def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,
+          pyramids: PyramidCache) -> np.ndarray:
     """Stage 2 (Sec. 4.2, Eq. 5): w_L between the left differential images, (H, W, 2) px."""
     return brox_optical_flow(
-        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta,
+        pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta, pyramid_cache=pyramids,
         initial_flow=None if warm is None else warm.flow,
         **solver_options(params.flow_options, params.warm_flow_for(warm.steps if warm else 1),
                          warm is not None))
@@ -319,7 +322,8 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
                init: tuple[np.ndarray | None, np.ndarray | None], params: ChainParameters,
                warm: bool, flags: Sequence[str],
                blanked: tuple[np.ndarray, np.ndarray] | None,
-               history: tuple[np.ndarray | None, int]) -> tuple[np.ndarray, np.ndarray]:
+               history: tuple[np.ndarray | None, int], pyramids: PyramidCache
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Stage 3 (Sec. 4.3, Eq. 6): d_L and d'_L given the flow, then d' made coherent with the
     previous triple's along the gas's paths."""
     options = solver_options(params.disparity_options, params.warm_disparity_options, warm)
@@ -332,7 +336,7 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
     d, dd = joint_disparity(
         pl.diff0, pr.diff0, pl.diff1, pr.diff1, flow, gamma1=params.gamma1,
         gamma2=params.gamma2, d0=params.d0, initial_disparity=init[0],
-        initial_change=init[1], blanked=blanked, **options)
+        initial_change=init[1], blanked=blanked, pyramid_cache=pyramids, **options)
     if params.temporal_weight > 0:
         # At stride 2 the previous triple is two frames back, so the paths are twice the
         # flow.

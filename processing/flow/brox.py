@@ -244,6 +244,7 @@ def brox_optical_flow(
     presmooth_sigma: float = 0.6,
     initial_flow: np.ndarray | None = None,
     n_levels: int | None = None,
+    pyramid_cache: variational.PyramidCache | None = None,
 ) -> np.ndarray:
     """Optical flow from ``image0`` to ``image1`` by minimising the paper's Eq. 5.
 
@@ -282,6 +283,9 @@ def brox_optical_flow(
         Use only the finest ``n_levels`` pyramid levels (default: all down to
         ``min_level_size``). A warm start from the previous frame's flow is already close
         and needs no coarse levels.
+    pyramid_cache : PyramidCache, optional
+        Shares the images' pyramids with other solver calls on the same image objects
+        (:class:`processing.solvers.variational.PyramidCache`).
 
     Returns
     -------
@@ -311,7 +315,7 @@ def brox_optical_flow(
     init = None if initial_flow is None else as_flow_field(initial_flow, i0.shape, "initial_flow")
     shapes, (p0, p1) = variational.build_pyramids(
         (i0, i1), pyramid_factor=pyramid_factor, min_level_size=min_level_size,
-        presmooth_sigma=presmooth_sigma, n_levels=n_levels)
+        presmooth_sigma=presmooth_sigma, n_levels=n_levels, cache=pyramid_cache)
     flow = np.zeros((*shapes[-1], 2), np.float32) if init is None else init
 
     def solve_level(level: int, fields: variational.Fields) -> variational.Fields:

@@ -154,8 +154,39 @@ def check_options(*, eps: float, pyramid_factor: float, omega: float, presmooth_
             raise ValueError(f"{name} must be a positive integer, got {n!r}")
 
 
+class PyramidCache:
+    """Pyramids of images that several solver calls share within one chain call.
+
+    The flow (Eq. 5) and the joint disparity (Eq. 6) both build pyramids of the left
+    differential images I_L(t0), I_L(t1) with the same pre-smoothing and factor: with one
+    cache passed to both, the second reuses the first's levels. Images are matched by
+    identity, so a cache must not outlive the arrays it saw unchanged: make one per chain
+    call.
+    """
+
+    def __init__(self) -> None:
+        self._entries: list[tuple[np.ndarray, tuple[float, int, float], list[np.ndarray]]] = []
+
+    def __len__(self) -> int:
+        """The number of pyramids held."""
+        return len(self._entries)
+
+    def levels(self, image: np.ndarray, key: tuple[float, int, float],
+               shapes: list[tuple[int, int]], smooth: Callable[[np.ndarray], np.ndarray]
+               ) -> list[np.ndarray]:
+        """The pyramid of ``image`` at ``shapes`` (finest first), built with ``smooth``
+        as its pre-smoothing, or the finest part of one built before under ``key``."""
+        for seen, seen_key, pyr in self._entries:
+            if seen is image and seen_key == key and len(pyr) >= len(shapes):
+                return pyr[:len(shapes)]
+        pyr = pyramid.image_pyramid(smooth(image), shapes)
+        self._entries.append((image, key, pyr))
+        return pyr
+
+
 def build_pyramids(images: Sequence[np.ndarray], *, pyramid_factor: float, min_level_size: int,
-                   presmooth_sigma: float, n_levels: int | None
+                   presmooth_sigma: float, n_levels: int | None,
+                   cache: PyramidCache | None = None
                    ) -> tuple[list[tuple[int, int]], list[list[np.ndarray]]]:
     """Pre-smooth the images and build their pyramids, finest level first.
 
@@ -167,6 +198,8 @@ def build_pyramids(images: Sequence[np.ndarray], *, pyramid_factor: float, min_l
         See the solvers.
     n_levels : int or None
         Keep only the finest ``n_levels`` levels (None: down to ``min_level_size``).
+    cache : PyramidCache, optional
+        Pyramids already built for these very image objects are taken from it.
 
     Returns
     -------
@@ -176,13 +209,19 @@ def build_pyramids(images: Sequence[np.ndarray], *, pyramid_factor: float, min_l
         One pyramid per image, levels as in ``shapes``.
     """
     shape = images[0].shape
-    if presmooth_sigma > 0:
-        images = [cv2.GaussianBlur(a, (0, 0), presmooth_sigma, borderType=cv2.BORDER_REFLECT)
-                  for a in images]
     shapes = pyramid.pyramid_shapes(shape, pyramid_factor, min(min_level_size, min(shape)))
     if n_levels is not None:
         shapes = shapes[:n_levels]
-    return shapes, [pyramid.image_pyramid(a, shapes) for a in images]
+
+    def smooth(a: np.ndarray) -> np.ndarray:
+        if presmooth_sigma <= 0:
+            return a
+        return cv2.GaussianBlur(a, (0, 0), presmooth_sigma, borderType=cv2.BORDER_REFLECT)
+
+    if cache is None:
+        return shapes, [pyramid.image_pyramid(smooth(a), shapes) for a in images]
+    key = (float(pyramid_factor), int(min_level_size), float(presmooth_sigma))
+    return shapes, [cache.levels(a, key, shapes, smooth) for a in images]
 
 
 def coarse_to_fine(shapes: Sequence[tuple[int, int]], fields: Fields,

@@ -148,6 +148,7 @@ def joint_disparity(
     constant_mode: bool = True,
     right_temporal_weight: float = 1.0,
     blanked: tuple[np.ndarray, np.ndarray] | None = None,
+    pyramid_cache: variational.PyramidCache | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Disparity d_L and disparity change d'_L of the left view by minimising Eq. 6.
 
@@ -212,6 +213,10 @@ def joint_disparity(
         differential images (the depth gate's). Data terms that sample them or their
         border are dropped, so d and d' there come from the smoothness terms alone
         (:func:`processing.stereo.terms.usable_maps`).
+    pyramid_cache : PyramidCache, optional
+        Shares the images' pyramids with other solver calls on the same image objects
+        (:class:`processing.solvers.variational.PyramidCache`): the flow's of I_L(t0) and
+        I_L(t1).
 
     Returns
     -------
@@ -244,7 +249,7 @@ def joint_disparity(
     shape = images[0].shape
     shapes, pyrs = variational.build_pyramids(
         images, pyramid_factor=pyramid_factor, min_level_size=min_level_size,
-        presmooth_sigma=presmooth_sigma, n_levels=n_levels)
+        presmooth_sigma=presmooth_sigma, n_levels=n_levels, cache=pyramid_cache)
 
     d, dp = _initial_fields(images[0], shapes[-1], d0, init, initial_change)
 
