@@ -16,8 +16,9 @@ Measures, in one run on one input (:mod:`appliance.evaluation.bench_input`):
 - a roofline-style floor: the bytes a warm triple streams through memory
   (:mod:`appliance.evaluation.roofline`) over the copy bandwidth measured in the same run;
 - stereo pairs per second with N worker processes (spawned), each pinned to one OpenCV and
-  one numba thread and taking every N-th triple as the daemon's workers do, back to back for a
-  fixed wall time after its own warm-up: completed triples / wall time. In streaming every
+  one numba thread and taking every N-th triple as the daemon's workers do (sharing the
+  registration shifts through shared memory as they do), back to back for a fixed wall
+  time after its own warm-up: completed triples / wall time. In streaming every
   new stereo pair completes one triple, so triples/s = pairs/s.
 """
 
@@ -45,6 +46,7 @@ from appliance.evaluation.bench_input import (
     load_frames,
 )
 from appliance.memory import keep_freed_memory
+from appliance.runtime.shiftshare import SharedShiftMemo, create_shift_table
 from appliance.runtime.workers import single_threaded
 from processing.chain import ChainParameters, ChainState, compute_scene_flow
 from processing.chain.state import STRIDES
@@ -243,17 +245,19 @@ class Throughput:
 
 
 def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, stride: int,
-            barrier: Any, results: Any) -> None:
+            barrier: Any, results: Any, shift_table: Any) -> None:
     """One throughput worker (spawned): warm up, wait for the others, run ``seconds``.
 
-    It takes every ``stride``-th triple from ``offset`` on, as the daemon's workers do.
+    It takes every ``stride``-th triple from ``offset`` on and shares registration shifts
+    with the other workers through ``shift_table``, as the daemon's workers do.
     """
     os.environ["NUMBA_NUM_THREADS"] = "1"  # before numba is first imported in this process
     os.environ["OMP_NUM_THREADS"] = "1"
     single_thread()
 
     geo, params = geometry(frames.image_size), ChainParameters()
-    state = ChainState(stride=stride if stride in STRIDES else 1)
+    state = ChainState(stride=stride if stride in STRIDES else 1,
+                       shifts=SharedShiftMemo(shift_table))
     triples = iter_triples(frames)
     for _ in range(offset):
         next(triples)
@@ -291,8 +295,9 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
     ctx = mp.get_context("spawn")
     barrier = ctx.Barrier(workers)
     results = ctx.Queue()
+    shift_table = create_shift_table(ctx)
     procs = [ctx.Process(target=_worker, args=(frames, seconds, warmup, i, workers, barrier,
-                                               results), daemon=True)
+                                               results, shift_table), daemon=True)
              for i in range(workers)]
     for p in procs:
         p.start()
