@@ -170,3 +170,18 @@ def test_votes_as_faint_as_the_gas_do_not_grow_into_it() -> None:
                               amplitude=faint + gas)
     assert gate.left[ring & (xx < 140)].mean() > 0.7  # the faint object itself still goes
     assert gate.left[gas_disk & (xx > 190)].mean() < 0.05
+
+
+def test_faint_gas_joined_to_an_object_is_kept_away_from_its_votes() -> None:
+    # Gas too faint to vote (below the activity floor, above the region threshold) that
+    # touches an object forms one region with it; the object's verdict took all of it
+    # (measured: 30 % of a plume with the object at its edge).
+    obj, obj_disk = _blob((80.0, 60.0), 22.0, seed=1)
+    yy, xx = np.mgrid[0:H, 0:W]
+    faint_gas = ((xx > 95) & (xx < 300) & (np.abs(yy - 60) < 30)).astype(np.float32)
+    faint_gas *= np.float32(0.035)
+    left = np.clip(0.5 + obj + faint_gas, 0, 1)
+    right = np.clip(0.5 + _shifted(obj, 20.0) + _shifted(faint_gas, 50.0), 0, 1)
+    gate = out_of_band_motion(left, right, d_min=BAND[0], d_max=BAND[1], dilate_px=2)
+    assert gate.left[obj_disk].mean() > 0.9
+    assert gate.left[(faint_gas > 0) & (xx > 160)].mean() < 0.05
