@@ -231,7 +231,10 @@ def grow_by_amplitude(out: np.ndarray, seeds: np.ndarray, gas: np.ndarray,
         return out
     a = np.abs(np.asarray(amplitude, np.float32))
     typical = float(np.median(a[seeds]))
-    if gas.any() and typical < GROW_CONTRAST * float(np.median(a[gas])):
+    # No in-band votes: no gas to tell the object's change from, and none it could hide
+    # behind; strong change then connects across a textured wall under jitter, and growing
+    # took all of it (measured: 18845 of 19200 px of a gas-free scene).
+    if not gas.any() or typical < GROW_CONTRAST * float(np.median(a[gas])):
         return out
     strong = (a >= fraction * typical).astype(np.uint8)
     n, labels = cv2.connectedComponents(strong, connectivity=8)
