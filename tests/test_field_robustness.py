@@ -126,7 +126,7 @@ def _object_disk(radius_px: float) -> np.ndarray:
 
 def test_the_gate_tolerance_decides_whether_an_object_just_behind_the_band_is_gated() -> None:
     # The object (8 m: d = 14.6 px) lies 4 px below the band's lower edge d0 = 18.6 px:
-    # outside the default 3 px margin, inside a 5 px one.
+    # outside the default 1.5 px margin, inside a 5 px one.
     gated = _gas_free_run(ChainParameters(d0=18.6, sgm_num_disparities=16), n_frames=3)[0]
     wide = _gas_free_run(ChainParameters(d0=18.6, sgm_num_disparities=16,
                                          gate_tolerance_px=5.0), n_frames=3)[0]

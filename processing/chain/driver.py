@@ -234,7 +234,8 @@ def _depth_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, params: ChainPar
     gate = out_of_band_motion(pl.diff0, pr.diff0, d_min=params.d0,
                               d_max=params.d0 + params.sgm_num_disparities,
                               tolerance_px=params.gate_tolerance_px,
-                              dilate_px=params.max_motion_px)
+                              dilate_px=params.max_motion_px, amplitude=pl.raw0,
+                              grow_fraction=params.gate_grow_fraction)
     if gate.fraction <= 0:
         return pl, pr, None
     flags.append("object_motion_rejected")

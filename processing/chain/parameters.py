@@ -72,8 +72,17 @@ class ChainParameters:
     gate_tolerance_px : float
         Margin of the depth gate around the gas band, px: SGBM's error and the gas's own
         depth spread. Something moving just behind the band's far edge is let through by
-        as much (measured: a warm object at 8 m, 29.1 px, behind gas whose band ends at
-        32 px, came through the default 3 px).
+        as much. SGBM measured a warm object at 8 m at 29.1 +- 0.4 px (half resolution) and
+        gas that lay in its band [32, 96] px at no less than 33 px once the columns left of
+        d0 (where gas has no partner in the right view) no longer voted; 3 px let the
+        object through, the default 1.5 px removes it.
+    gate_grow_fraction : float
+        The depth gate's object also takes the connected pixels whose raw change reaches
+        this share of the object's median change (:func:`processing.preprocess.depth_gate.
+        grow_by_amplitude`): edges of the object seen through gas, whose SGBM disparity
+        drifts into the band. In [0, 1]; 0 uses the votes alone. The default 0.5 lies above
+        the gas's largest change next to an object 10 K warmer than a plant wall (measured:
+        the object's edge changes 4-10x as much as the gas does).
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
     temporal_weight : float
@@ -137,7 +146,8 @@ class ChainParameters:
     gas_temperature_k: float | None = None
     min_contrast_k: float = 1.0
     depth_gate: bool = True
-    gate_tolerance_px: float = 3.0
+    gate_tolerance_px: float = 1.5
+    gate_grow_fraction: float = 0.5
     max_motion_px: int = 8
     temporal_weight: float = 0.7
     diff_scale: float | None = None
@@ -179,6 +189,9 @@ class ChainParameters:
                              f"got {self.region_margin_px!r}")
         if not self.gate_tolerance_px >= 0:
             raise ValueError(f"gate_tolerance_px must be >= 0, got {self.gate_tolerance_px!r}")
+        if not 0 <= self.gate_grow_fraction <= 1:
+            raise ValueError(f"gate_grow_fraction must be in [0, 1], "
+                             f"got {self.gate_grow_fraction!r}")
         if not self.max_gas_speed_m_s > 0:
             raise ValueError(f"max_gas_speed_m_s must be positive, "
                              f"got {self.max_gas_speed_m_s!r}")
