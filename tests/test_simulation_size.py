@@ -94,6 +94,7 @@ def test_chain_settings_in_px_grow_with_the_width(tmp_path: Path) -> None:
     assert d["sgm_num_disparities"] == 2 * base.sgm_num_disparities
     assert d["max_motion_px"] == 2 * base.max_motion_px
     assert d["region_margin_px"] == 2 * base.region_margin_px
+    assert d["gate_tolerance_px"] == 2 * base.gate_tolerance_px
     ChainParameters.from_mapping(d)  # valid chain parameters
     small = simsite.SimulatedSite(load_config(None), np.eye(3))
     small.folder = tmp_path

@@ -316,8 +316,8 @@ class SimulatedSite:
         conditions): registration could only lock onto the gas. The minimum disparity d0 is
         that of twice the plume distance. Wider cameras than 320 px see the same scene with
         more pixels: the chain's settings in px (the SGM search range, hence the depth band;
-        the largest motion; the active region's margin) grow with the width, so they keep
-        meaning the same metres and m/s.
+        the depth gate's tolerance; the largest motion; the active region's margin) grow
+        with the width, so they keep meaning the same metres and m/s.
         """
         if self.folder is None:
             return {}
@@ -331,7 +331,8 @@ class SimulatedSite:
             base = ChainParameters()
             out.update(sgm_num_disparities=k * base.sgm_num_disparities,
                        max_motion_px=k * base.max_motion_px,
-                       region_margin_px=k * base.region_margin_px)
+                       region_margin_px=k * base.region_margin_px,
+                       gate_tolerance_px=k * base.gate_tolerance_px)
         return out
 
     def shown_true_rate_g_s(self) -> float | None:
