@@ -10,15 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _cubic_weights(frac: float) -> tuple[float, float, float, float]:
-    """Keys cubic-convolution weights (a = -0.5) for taps at -1, 0, 1, 2 and offset ``frac``
-    in [0, 1)."""
-    t2 = frac * frac
-    t3 = t2 * frac
-    return (-0.5 * t3 + t2 - 0.5 * frac, 1.5 * t3 - 2.5 * t2 + 1.0,
-            -1.5 * t3 + 2.0 * t2 + 0.5 * frac, 0.5 * t3 - 0.5 * t2)
+from processing.solvers.derivatives import catmull_rom_weights
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -51,8 +43,8 @@ def translate_into(image: np.ndarray, dx: float, dy: float, out: np.ndarray,
     h, w = image.shape
     ix = int(np.floor(dx))
     iy = int(np.floor(dy))
-    wx0, wx1, wx2, wx3 = _cubic_weights(dx - ix)
-    wy0, wy1, wy2, wy3 = _cubic_weights(dy - iy)
+    wx0, wx1, wx2, wx3 = catmull_rom_weights(dx - ix)
+    wy0, wy1, wy2, wy3 = catmull_rom_weights(dy - iy)
     fx0, fx1, fx2, fx3 = (np.float32(wx0), np.float32(wx1), np.float32(wx2),
                           np.float32(wx3))
     fy0, fy1, fy2, fy3 = (np.float32(wy0), np.float32(wy1), np.float32(wy2),
@@ -87,7 +79,8 @@ def translate_into(image: np.ndarray, dx: float, dy: float, out: np.ndarray,
 def warp_translation(image: np.ndarray, shift: tuple[float, float]) -> np.ndarray:
     """Resample ``image`` at x + shift (separable bicubic, mirrored borders).
 
-    A pure translation gives every pixel the same interpolation weights, so the warp is
+    A pure translation gives every pixel the same interpolation weights (Keys' cubic,
+    a = -0.5: :func:`processing.solvers.derivatives.catmull_rom_weights`), so the warp is
     4 + 4 weighted sums of integer-shifted rows (:func:`translate_into`). Unlike
     ``cv2.warpAffine``, which rounds sub-pixel positions to 1/32 px, the weights here use
     the exact fractional shift: the 0.05 px registration target needs that.

@@ -62,8 +62,10 @@ _ZERO = np.float32(0.0)
 
 
 @numba.njit(inline="always")
-def _weights(t: float) -> tuple[float, float, float, float]:
-    """Catmull-Rom (Keys, a = -0.5) weights of the 4 taps at fraction t in [0, 1)."""
+def catmull_rom_weights(t: float) -> tuple[float, float, float, float]:
+    """Catmull-Rom (Keys, a = -0.5) weights of the 4 taps at -1, 0, 1, 2 for the fraction
+    t in [0, 1) (float32 constants, so a float32 t stays in float32 lanes and a float64 one
+    in float64)."""
     t2 = t * t
     t3 = t2 * t
     return (-_C05 * t3 + t2 - _C05 * t, _C15 * t3 - _C25 * t2 + _ONE,
@@ -72,7 +74,7 @@ def _weights(t: float) -> tuple[float, float, float, float]:
 
 @numba.njit(inline="always")
 def _slopes(t: float) -> tuple[float, float, float, float]:
-    """d/dt of :func:`_weights`: the exact derivative of the interpolant."""
+    """d/dt of :func:`catmull_rom_weights`: the exact derivative of the interpolant."""
     t2 = t * t
     return (-_C15 * t2 + _C2 * t - _C05, _C45 * t2 - _C5 * t, -_C45 * t2 + _C4 * t + _C05,
             _C15 * t2 - t)
@@ -110,7 +112,7 @@ def _clamped(padded: np.ndarray, x: float, y: float
 def _columns(padded: np.ndarray, r: np.uint64, c: np.uint64, ty: float
              ) -> tuple[float, float, float, float]:
     """The 4 tap columns c..c+3 interpolated vertically over rows r..r+3."""
-    wy0, wy1, wy2, wy3 = _weights(ty)
+    wy0, wy1, wy2, wy3 = catmull_rom_weights(ty)
     r1, r2, r3 = r + _U1, r + _U2, r + _U3
     c1, c2, c3 = c + _U1, c + _U2, c + _U3
     return (wy0 * padded[r, c] + wy1 * padded[r1, c] + wy2 * padded[r2, c]
@@ -124,13 +126,27 @@ def _columns(padded: np.ndarray, r: np.uint64, c: np.uint64, ty: float
 
 
 @numba.njit(inline="always")
+def _along_x(q: tuple[float, float, float, float], x: float, fx: float
+             ) -> tuple[float, float]:
+    """The horizontal step from the 4 tap columns ``q``: the value at ``fx`` (x clamped into
+    the image) and the exact x-derivative of the interpolant, 0 where x was clamped (the
+    replicated border is constant along x)."""
+    tx = fx - np.float32(int(fx))
+    wx0, wx1, wx2, wx3 = catmull_rom_weights(tx)
+    dx0, dx1, dx2, dx3 = _slopes(tx)
+    value = wx0 * q[0] + wx1 * q[1] + wx2 * q[2] + wx3 * q[3]
+    slope = dx0 * q[0] + dx1 * q[1] + dx2 * q[2] + dx3 * q[3]
+    return value, (slope if x == fx else _ZERO)
+
+
+@numba.njit(inline="always")
 def catmull_rom_at(padded: np.ndarray, x: float, y: float) -> float:
     """Catmull-Rom sample at (x, y) of the image inside ``padded``
     (:func:`pad_for_sampling`), border replicated, float32 maths: the value path of
     :func:`warp_dx_catmull_rom` for one point, for fused kernels."""
     fx, fy, r, c = _clamped(padded, x, y)
     q0, q1, q2, q3 = _columns(padded, r, c, fy - np.float32(int(fy)))
-    wx0, wx1, wx2, wx3 = _weights(fx - np.float32(int(fx)))
+    wx0, wx1, wx2, wx3 = catmull_rom_weights(fx - np.float32(int(fx)))
     return wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
 
 
@@ -139,33 +155,17 @@ def catmull_rom_dx_at(padded: np.ndarray, x: float, y: float) -> tuple[float, fl
     """:func:`catmull_rom_at` and the exact x-derivative of the interpolant there (0 where
     x is clamped to the border): one point of :func:`warp_dx_catmull_rom`."""
     fx, fy, r, c = _clamped(padded, x, y)
-    tx = fx - np.float32(int(fx))
-    q0, q1, q2, q3 = _columns(padded, r, c, fy - np.float32(int(fy)))
-    wx0, wx1, wx2, wx3 = _weights(tx)
-    dx0, dx1, dx2, dx3 = _slopes(tx)
-    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-    slope = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
-    # A clamped x is the replicated border: the sample is constant along x there.
-    return value, (slope if x == fx else _ZERO)
+    return _along_x(_columns(padded, r, c, fy - np.float32(int(fy))), x, fx)
 
 
 @numba.njit(inline="always")
 def catmull_rom_dx_on_row(padded: np.ndarray, x: float, y: int) -> tuple[float, float]:
     """:func:`catmull_rom_dx_at` at a pixel row ``y``: with an integer row the vertical
     weights are exactly (0, 1, 0, 0), so 4 samples give the same result as 16."""
-    fx = min(max(x, _ZERO), np.float32(padded.shape[1] - 2 * SAMPLING_PAD - 1))
-    tx = fx - np.float32(int(fx))
+    fx, _, _, c = _clamped(padded, x, np.float32(y))
     r = np.uint64(y + SAMPLING_PAD)
-    c = np.uint64(int(fx) + SAMPLING_PAD - 1)
-    q0 = padded[r, c]
-    q1 = padded[r, c + _U1]
-    q2 = padded[r, c + _U2]
-    q3 = padded[r, c + _U3]
-    wx0, wx1, wx2, wx3 = _weights(tx)
-    dx0, dx1, dx2, dx3 = _slopes(tx)
-    value = wx0 * q0 + wx1 * q1 + wx2 * q2 + wx3 * q3
-    slope = dx0 * q0 + dx1 * q1 + dx2 * q2 + dx3 * q3
-    return value, (slope if x == fx else _ZERO)
+    return _along_x((padded[r, c], padded[r, c + _U1], padded[r, c + _U2],
+                     padded[r, c + _U3]), x, fx)
 
 
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
