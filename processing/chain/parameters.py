@@ -115,9 +115,9 @@ class ChainParameters:
         On a warm start, solve the flow and the disparities only inside the box around
         the active pixels and the previous gas mask (:mod:`processing.chain.region`);
         False (the default) solves the whole frame every time. Faster, but not free: on
-        the default robustness matrix the velocity figures hold (ideal 7.0/7.1 -> 7.7 %/6.1
-        deg, all realistic 8.4/11.4 -> 8.2/9.9) while the false-gas share of the mask grows
-        from 0.06 to 0.25 (docs/performance.md).
+        the default robustness matrix all realistic reads 14.5 % / 14.9 deg instead of
+        8.3 / 9.9 and the false-gas share of the mask grows from 0.06 to 0.25 (ideal;
+        docs/performance.md).
     region_margin_px : int
         Margin of that box around the active pixels, px.
     region_max_fraction : float
