@@ -158,6 +158,11 @@ def out_of_band_motion(
     # in most triples). An object farther than the gas keeps its votes right of it.
     measured[:, :min(int(np.ceil(d_min)), w)] = False
     outside = measured & ((d < d_min - tolerance_px) | (d > d_max + tolerance_px))
+    # An object needs MIN_VOTES out-of-band votes in its region (_verdict) or its window
+    # (_local_majority): with fewer in the whole image nothing is removed, and the regions,
+    # votes and masks below would only confirm it (the common case: gas alone).
+    if np.count_nonzero(outside) < MIN_VOTES:
+        return _empty_gate(h, w)
     inside = measured & ~outside
     # SGBM finds reliable disparities only at part of an object's pixels: every connected
     # region of active pixels takes the verdict of the majority of its measured pixels.
@@ -168,6 +173,8 @@ def out_of_band_motion(
     out, reject = _verdict(outside, inside, d, labels, n_labels)
     if amplitude is not None and grow_fraction > 0:
         out = grow_by_amplitude(out, outside & out, inside, amplitude, grow_fraction)
+    if not out.any():
+        return _empty_gate(h, w)
     win = (2 * VOTE_RADIUS + 1, 2 * VOTE_RADIUS + 1)
     # Each removed pixel's partner in the right view, at the local out-of-band disparity.
     d_sum = cv2.boxFilter(np.where(outside, d, 0).astype(np.float32), -1, win,
@@ -191,6 +198,11 @@ def out_of_band_motion(
     left_d = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
     right_d = cv2.dilate(right_mask, kernel).astype(bool)
     return DepthGate(left_d, right_d, float(out.mean()))
+
+
+def _empty_gate(h: int, w: int) -> DepthGate:
+    """A gate of an (H, W) view pair that removes nothing."""
+    return DepthGate(np.zeros((h, w), bool), np.zeros((h, w), bool), 0.0)
 
 
 def grow_by_amplitude(out: np.ndarray, seeds: np.ndarray, gas: np.ndarray,
@@ -261,10 +273,13 @@ def _verdict(outside: np.ndarray, inside: np.ndarray, d: np.ndarray, labels: np.
     # ... but only near its votes: an object behind faint gas joins it into one region
     # whose gas has no votes of its own (too faint to be active next to the object), and
     # the whole region went (measured: 25-35 % of a plume with the object at its edge).
+    local = _local_majority(outside, inside, d, labels > 0)
+    if not reject.any():  # no region to restrict (the dilation is the dearest step here)
+        return local, reject
     reach = 2 * REGION_REACH_PX + 1
     near = cv2.dilate(outside.astype(np.uint8),
                       cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach, reach))) > 0
-    out = (reject[labels] & near) | _local_majority(outside, inside, d, labels > 0)
+    out = (reject[labels] & near) | local
     return out, reject
 
 
