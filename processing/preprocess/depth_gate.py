@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.order_statistics import robust_spread
 from processing.stereo.sgm import sgbm_disparity
 from processing.validation import as_float_image, check_same_shape
 
@@ -84,12 +85,6 @@ class DepthGate:
     left: np.ndarray
     right: np.ndarray
     fraction: float
-
-
-def _robust_spread(a: np.ndarray) -> float:
-    """1.4826 * median |a - median(a)| of every 2nd pixel (the noise of a mostly still image)."""
-    sub = a[::2, ::2]
-    return 1.4826 * float(np.median(np.abs(sub - np.median(sub)))) + 1e-6
 
 
 def out_of_band_motion(
@@ -145,7 +140,8 @@ def out_of_band_motion(
     n_disp = int(16 * np.ceil(hi / 16.0))
     n_disp = min(n_disp, 16 * ((w - 8) // 16))
     d, valid = _coarse_sgbm(il, ir, n_disp, sgbm_downsample)
-    active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * _robust_spread(il), ACTIVITY_FLOOR)
+    noise = robust_spread(il) + 1e-6  # of a mostly still image
+    active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * noise, ACTIVITY_FLOOR)
     measured = valid & active
     # SGBM's blocks are cut by the right border, where it returns d ~ 0 on any texture
     # (measured: 1656 such votes in the last 10 columns as gas left the view, which the
