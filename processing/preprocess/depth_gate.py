@@ -154,10 +154,9 @@ def out_of_band_motion(
     # in most triples). An object farther than the gas keeps its votes right of it.
     measured[:, :min(int(np.ceil(d_min)), w)] = False
     outside = measured & ((d < d_min - tolerance_px) | (d > d_max + tolerance_px))
-    # An object needs MIN_VOTES out-of-band votes in its region (_verdict) or its window
-    # (_local_majority): with fewer in the whole image nothing is removed, and the regions,
-    # votes and masks below would only confirm it (the common case: gas alone).
-    if np.count_nonzero(outside) < MIN_VOTES:
+    # The regions, votes and masks below would only confirm that nothing is removed (the
+    # common case: gas alone).
+    if too_few_votes(outside):
         return _empty_gate(h, w)
     inside = measured & ~outside
     # SGBM finds reliable disparities only at part of an object's pixels: every connected
@@ -194,6 +193,19 @@ def out_of_band_motion(
     left_d = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
     right_d = cv2.dilate(right_mask, kernel).astype(bool)
     return DepthGate(left_d, right_d, float(out.mean()))
+
+
+def too_few_votes(outside: np.ndarray) -> bool:
+    """Whether ``outside`` (H, W) bool has too few out-of-band votes for any object.
+
+    An object needs ``MIN_VOTES`` votes in its region (:func:`_verdict`) or in its window
+    (:func:`_local_majority`); with fewer in the whole image and in every window, nothing
+    is removed. The windows matter near the border: their box sums count the votes
+    mirrored there once more (9 votes in a corner made a 192 px object of a jittered
+    scene).
+    """
+    return (np.count_nonzero(outside) < MIN_VOTES
+            and float(_window_votes(outside).max()) < MIN_VOTES)
 
 
 def _empty_gate(h: int, w: int) -> DepthGate:
@@ -310,15 +322,21 @@ def _local_majority(outside: np.ndarray, inside: np.ndarray, d: np.ndarray,
     win a window too (measured: 30 % of a faint, noisy plume removed); an object's votes
     lie at its one depth."""
     win = (2 * LOCAL_RADIUS + 1, 2 * LOCAL_RADIUS + 1)
-    out = outside.astype(np.float32)
-    n_out = cv2.boxFilter(out, -1, win, normalize=False)
-    n_in = cv2.boxFilter(inside.astype(np.float32), -1, win, normalize=False)
+    n_out = _window_votes(outside)
+    n_in = _window_votes(inside)
     d_out = np.where(outside, d, 0).astype(np.float32)
     n = np.maximum(n_out, 1.0)
     mean = cv2.boxFilter(d_out, -1, win, normalize=False) / n
     var = cv2.boxFilter(d_out * d_out, -1, win, normalize=False) / n - mean * mean
     return (region & (n_out >= MIN_VOTES) & (n_out > MAJORITY * n_in)
             & (var < LOCAL_SPREAD_PX ** 2))
+
+
+def _window_votes(votes: np.ndarray) -> np.ndarray:
+    """Votes within ``LOCAL_RADIUS`` of each pixel, (H, W) float32, of a (H, W) bool mask
+    (OpenCV's box sum: near the border the window also counts mirrored votes)."""
+    win = (2 * LOCAL_RADIUS + 1, 2 * LOCAL_RADIUS + 1)
+    return cv2.boxFilter(votes.astype(np.float32), -1, win, normalize=False)
 
 
 def _coarse_sgbm(left: np.ndarray, right: np.ndarray, n_disp: int, factor: int
