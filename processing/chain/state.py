@@ -22,7 +22,7 @@ pixel grid: :mod:`processing.preprocess.differential` registers t1 and t2 onto t
 next triple needs it on the t1 grid. When the triple left t1 where it was (its t0 -> t1 shift
 is zero: no jitter, a rejected shift, registration off) the two are the same numbers, and
 the next triple takes D(t1) raw and denoised from here (:meth:`ChainState.known_differences`:
-one difference and one denoising less per camera, about 1.4 ms of a warm 320x240 triple);
+one difference and one denoising less per camera, about 1.2 ms of a warm 320x240 triple);
 otherwise re-using it would cost an interpolation, and it is computed anew.
 
 A warm start is taken only when this triple follows the previous one of the same
