@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 
 from processing.chain import ChainParameters
-from processing.preprocess.depth_gate import DepthGate, apply_gate, out_of_band_motion
+from processing.preprocess.depth_gate import (
+    MIN_VOTES,
+    DepthGate,
+    _local_majority,
+    apply_gate,
+    out_of_band_motion,
+    too_few_votes,
+)
 from processing.preprocess.differential import PreprocessedTriple
 
 H, W = 120, 320
@@ -185,3 +192,22 @@ def test_faint_gas_joined_to_an_object_is_kept_away_from_its_votes() -> None:
     gate = out_of_band_motion(left, right, d_min=BAND[0], d_max=BAND[1], dilate_px=2)
     assert gate.left[obj_disk].mean() > 0.9
     assert gate.left[(faint_gas > 0) & (xx > 160)].mean() < 0.05
+
+
+def test_too_few_votes_counts_the_windows_mirrored_votes_at_the_border() -> None:
+    # Fewer than MIN_VOTES out-of-band votes remove nothing in the middle of the image, but
+    # in a corner the local vote's window counts them up to four times (mirrored border):
+    # the shortcut must then leave the decision to the vote, which does remove them.
+    votes = MIN_VOTES - 3
+    none_in = np.zeros((H, W), bool)
+    d = np.full((H, W), 20.0, np.float32)
+    middle = none_in.copy()
+    middle[60, 150:150 + votes] = True
+    assert too_few_votes(middle)
+    assert not _local_majority(middle, none_in, d, np.ones((H, W), bool)).any()
+    corner = none_in.copy()
+    corner[:3, :3] = True
+    assert corner.sum() == votes
+    assert not too_few_votes(corner)
+    assert _local_majority(corner, none_in, d, np.ones((H, W), bool)).any()
+    assert not too_few_votes(np.ones((H, W), bool))

@@ -152,6 +152,44 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
     assert state.frames_reused == 4  # t1, t2 of both cameras in the second triple
 
 
+@pytest.mark.parametrize(("register", "max_jitter_px", "moving"),
+                         [(False, 1.5, True), (True, 1e-6, True), (True, 1.5, False)])
+def test_a_difference_left_on_its_grid_is_reused_with_the_same_result(
+        register: bool, max_jitter_px: float, moving: bool) -> None:
+    """D(t1) of a triple that left t1 unmoved (registration off, or every shift rejected:
+    the moving plane) is D(t0) of the next: taken from the state, the differential images
+    are exactly those of pre-processing each triple on its own with the same shifts;
+    accepted jitter (the still plane) moves t1, and the difference is computed anew."""
+    from processing.preprocess.differential import preprocess_stereo
+    from processing.preprocess.translation import warp_translation
+
+    left, right, times = _sequence(6)
+    if not moving:
+        left, right = [left[0]] * 6, [right[0]] * 6
+    rng = np.random.default_rng(5)
+    left = [np.rint(warp_translation(f.astype(np.float32), tuple(rng.uniform(-0.3, 0.3, 2))))
+            .astype(np.uint16) for f in left]
+    seq = (left, right, times)
+    params = dataclasses.replace(PARAMS, register=register, max_jitter_px=max_jitter_px,
+                                 diff_scale=500.0, depth_gate=False)  # the diffs as made
+    state = ChainState()
+    for k in range(4):
+        res = compute_scene_flow(*_triple(seq, k), GEOMETRY, params, state)
+        lk, rk, _ = _triple(seq, k)
+        pl, pr = preprocess_stereo(lk, rk, scale=500.0, register=register,
+                                   shift01=(res.shifts_left[0], res.shifts_right[0]),
+                                   shift12=(res.shifts_left[1], res.shifts_right[1]))
+        for got, want in ((res.diff_left, (pl.diff0, pl.diff1)),
+                          (res.diff_right, (pr.diff0, pr.diff1))):
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+        assert (res.shifts_left[0] != (0.0, 0.0)) == (register and not moving)
+    if moving:
+        assert state.differences_reused == 6  # both cameras in triples 1-3
+    else:  # the left camera's t1 moved in every triple: its D(t1) is not kept
+        assert 0 not in state.differences
+
+
 def test_shift_memo_answers_only_the_exact_frame_pair() -> None:
     from processing.chain.shifts import LocalShiftMemo
 

@@ -215,13 +215,21 @@ def _preprocess(left: Sequence[np.ndarray], right: Sequence[np.ndarray], times: 
             (left, geometry.curve_left, geometry.maps_left),
             (right, geometry.curve_right, geometry.maps_right)))
     ]
+    shift01 = tuple(k[0][0] if k[0] else None for k in known)
+    # D(t0) of the previous triple's D(t1) (:meth:`ChainState.known_differences`); the
+    # differences depend on these settings too, and without registration no frame moves.
+    settings = (lg, contrast_floor, params.denoise_lambda)
+    diff0 = stream.known_differences(times, shift01 if params.register else ((0.0, 0.0),) * 2,
+                                     settings)
     pl, pr = preprocess_stereo(
         corrected[0], corrected[1], scale=scale, register=params.register,
         denoise_lambda=params.denoise_lambda,
-        shift01=tuple(k[0][0] if k[0] else None for k in known),  # type: ignore[arg-type]
+        shift01=shift01,  # type: ignore[arg-type]
         shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
         max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
+        diff0=diff0,  # type: ignore[arg-type]
     )
+    stream.remember_differences(times, (pl, pr), settings)
     pl, pr = stream.remember_shifts(times, known, (pl, pr))
     return pl, pr
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.order_statistics import median, quantile
 
 #: Flags of a triple whose data do not fix the constant part of d and d' (see
 #: :func:`processing.stereo.constant_mode.constant_mode_step`).
@@ -45,6 +46,6 @@ def contrast_ratio(triple: PreprocessedTriple) -> float:
     """Strongest change over noise in the raw (not denoised) D(t0): the 0.999 quantile of
     |D| over 1.4826 x its median absolute value (the noise where nothing moves)."""
     a = np.abs(triple.raw0[::2, ::2])
-    noise = 1.4826 * float(np.median(a))
-    peak = float(np.quantile(a, 0.999))
+    noise = 1.4826 * median(a)
+    peak = quantile(a, 0.999)
     return peak / noise if noise > 0 else float("inf")

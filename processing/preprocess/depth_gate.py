@@ -38,6 +38,7 @@ import cv2
 import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.order_statistics import robust_spread
 from processing.stereo.sgm import sgbm_disparity
 from processing.validation import as_float_image, check_same_shape
 
@@ -84,12 +85,6 @@ class DepthGate:
     left: np.ndarray
     right: np.ndarray
     fraction: float
-
-
-def _robust_spread(a: np.ndarray) -> float:
-    """1.4826 * median |a - median(a)| of every 2nd pixel (the noise of a mostly still image)."""
-    sub = a[::2, ::2]
-    return 1.4826 * float(np.median(np.abs(sub - np.median(sub)))) + 1e-6
 
 
 def out_of_band_motion(
@@ -145,7 +140,8 @@ def out_of_band_motion(
     n_disp = int(16 * np.ceil(hi / 16.0))
     n_disp = min(n_disp, 16 * ((w - 8) // 16))
     d, valid = _coarse_sgbm(il, ir, n_disp, sgbm_downsample)
-    active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * _robust_spread(il), ACTIVITY_FLOOR)
+    noise = robust_spread(il) + 1e-6  # of a mostly still image
+    active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * noise, ACTIVITY_FLOOR)
     measured = valid & active
     # SGBM's blocks are cut by the right border, where it returns d ~ 0 on any texture
     # (measured: 1656 such votes in the last 10 columns as gas left the view, which the
@@ -158,6 +154,10 @@ def out_of_band_motion(
     # in most triples). An object farther than the gas keeps its votes right of it.
     measured[:, :min(int(np.ceil(d_min)), w)] = False
     outside = measured & ((d < d_min - tolerance_px) | (d > d_max + tolerance_px))
+    # The regions, votes and masks below would only confirm that nothing is removed (the
+    # common case: gas alone).
+    if too_few_votes(outside):
+        return _empty_gate(h, w)
     inside = measured & ~outside
     # SGBM finds reliable disparities only at part of an object's pixels: every connected
     # region of active pixels takes the verdict of the majority of its measured pixels.
@@ -168,6 +168,8 @@ def out_of_band_motion(
     out, reject = _verdict(outside, inside, d, labels, n_labels)
     if amplitude is not None and grow_fraction > 0:
         out = grow_by_amplitude(out, outside & out, inside, amplitude, grow_fraction)
+    if not out.any():
+        return _empty_gate(h, w)
     win = (2 * VOTE_RADIUS + 1, 2 * VOTE_RADIUS + 1)
     # Each removed pixel's partner in the right view, at the local out-of-band disparity.
     d_sum = cv2.boxFilter(np.where(outside, d, 0).astype(np.float32), -1, win,
@@ -191,6 +193,24 @@ def out_of_band_motion(
     left_d = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
     right_d = cv2.dilate(right_mask, kernel).astype(bool)
     return DepthGate(left_d, right_d, float(out.mean()))
+
+
+def too_few_votes(outside: np.ndarray) -> bool:
+    """Whether ``outside`` (H, W) bool has too few out-of-band votes for any object.
+
+    An object needs ``MIN_VOTES`` votes in its region (:func:`_verdict`) or in its window
+    (:func:`_local_majority`); with fewer in the whole image and in every window, nothing
+    is removed. The windows matter near the border: their box sums count the votes
+    mirrored there once more (9 votes in a corner made a 192 px object of a jittered
+    scene).
+    """
+    return (np.count_nonzero(outside) < MIN_VOTES
+            and float(_window_votes(outside).max()) < MIN_VOTES)
+
+
+def _empty_gate(h: int, w: int) -> DepthGate:
+    """A gate of an (H, W) view pair that removes nothing."""
+    return DepthGate(np.zeros((h, w), bool), np.zeros((h, w), bool), 0.0)
 
 
 def grow_by_amplitude(out: np.ndarray, seeds: np.ndarray, gas: np.ndarray,
@@ -261,10 +281,13 @@ def _verdict(outside: np.ndarray, inside: np.ndarray, d: np.ndarray, labels: np.
     # ... but only near its votes: an object behind faint gas joins it into one region
     # whose gas has no votes of its own (too faint to be active next to the object), and
     # the whole region went (measured: 25-35 % of a plume with the object at its edge).
+    local = _local_majority(outside, inside, d, labels > 0)
+    if not reject.any():  # no region to restrict (the dilation is the dearest step here)
+        return local, reject
     reach = 2 * REGION_REACH_PX + 1
     near = cv2.dilate(outside.astype(np.uint8),
                       cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach, reach))) > 0
-    out = (reject[labels] & near) | _local_majority(outside, inside, d, labels > 0)
+    out = (reject[labels] & near) | local
     return out, reject
 
 
@@ -299,15 +322,21 @@ def _local_majority(outside: np.ndarray, inside: np.ndarray, d: np.ndarray,
     win a window too (measured: 30 % of a faint, noisy plume removed); an object's votes
     lie at its one depth."""
     win = (2 * LOCAL_RADIUS + 1, 2 * LOCAL_RADIUS + 1)
-    out = outside.astype(np.float32)
-    n_out = cv2.boxFilter(out, -1, win, normalize=False)
-    n_in = cv2.boxFilter(inside.astype(np.float32), -1, win, normalize=False)
+    n_out = _window_votes(outside)
+    n_in = _window_votes(inside)
     d_out = np.where(outside, d, 0).astype(np.float32)
     n = np.maximum(n_out, 1.0)
     mean = cv2.boxFilter(d_out, -1, win, normalize=False) / n
     var = cv2.boxFilter(d_out * d_out, -1, win, normalize=False) / n - mean * mean
     return (region & (n_out >= MIN_VOTES) & (n_out > MAJORITY * n_in)
             & (var < LOCAL_SPREAD_PX ** 2))
+
+
+def _window_votes(votes: np.ndarray) -> np.ndarray:
+    """Votes within ``LOCAL_RADIUS`` of each pixel, (H, W) float32, of a (H, W) bool mask
+    (OpenCV's box sum: near the border the window also counts mirrored votes)."""
+    win = (2 * LOCAL_RADIUS + 1, 2 * LOCAL_RADIUS + 1)
+    return cv2.boxFilter(votes.astype(np.float32), -1, win, normalize=False)
 
 
 def _coarse_sgbm(left: np.ndarray, right: np.ndarray, n_disp: int, factor: int

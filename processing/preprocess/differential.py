@@ -176,6 +176,10 @@ class PreprocessedTriple:
         therefore not applied.
     rejected : (bool, bool)
         Which of the two shifts this call estimated and rejected (False for a known one).
+    denoised1 : ndarray, shape (H, W), float32, or None
+        ``raw1`` denoised, before normalisation (and before any depth gate): the next
+        triple's D(t0) together with ``raw1`` when t1 stayed where it was (``shifts[0]`` is
+        (0, 0)), see ``diff0`` of :func:`preprocess_camera`.
     """
 
     diff0: np.ndarray
@@ -185,6 +189,7 @@ class PreprocessedTriple:
     shifts: tuple[tuple[float, float], tuple[float, float]]
     rejected_shifts: int = 0
     rejected: tuple[bool, bool] = (False, False)
+    denoised1: np.ndarray | None = None
 
     @property
     def border_px(self) -> int:
@@ -208,6 +213,7 @@ def preprocess_camera(
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
     shift12: tuple[float, float] | None = None,
+    diff0: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PreprocessedTriple:
     """Steps 1-6 of the module docstring for one camera and three consecutive frames.
 
@@ -240,6 +246,12 @@ def preprocess_camera(
     gas_radiance, min_contrast : float or None, float
         L_g and the contrast floor of :func:`differential_image` (radiance units; needs
         ``curve``); None keeps the plain difference.
+    diff0 : (ndarray, ndarray) or None
+        D(t0) raw and denoised, shape (H, W) float32, when already known: the previous
+        triple's ``raw1`` and ``denoised1`` of the same camera and settings, which are this
+        D(t0) exactly when that triple left its t1 (this t0) unmoved and moved its t2 (this
+        t1) by this ``shift01``. The caller vouches for that; it saves a difference and a
+        denoising.
 
     Returns
     -------
@@ -282,12 +294,16 @@ def preprocess_camera(
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)
-    raw0 = differential_image(imgs[0], imgs[1], gas_radiance, min_contrast)
+    if diff0 is None:
+        raw0 = differential_image(imgs[0], imgs[1], gas_radiance, min_contrast)
+        smooth0 = sobolev_denoise(raw0, denoise_lambda)
+    else:
+        raw0, smooth0 = diff0
     raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
-    diff0 = normalise_difference(sobolev_denoise(raw0, denoise_lambda), scale)
-    diff1 = normalise_difference(sobolev_denoise(raw1, denoise_lambda), scale)
-    return PreprocessedTriple(diff0, diff1, raw0, raw1, (s01, s12), sum(rejected),
-                              (rejected[0], rejected[1]))
+    smooth1 = sobolev_denoise(raw1, denoise_lambda)
+    return PreprocessedTriple(normalise_difference(smooth0, scale),
+                              normalise_difference(smooth1, scale), raw0, raw1, (s01, s12),
+                              sum(rejected), (rejected[0], rejected[1]), smooth1)
 
 
 def rescale_differences(triple: PreprocessedTriple, factor: float) -> PreprocessedTriple:
@@ -332,6 +348,8 @@ def preprocess_stereo(
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
     shift12: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
+    diff0: tuple[tuple[np.ndarray, np.ndarray] | None,
+                 tuple[np.ndarray, np.ndarray] | None] = (None, None),
 ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
     """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
 
@@ -344,9 +362,9 @@ def preprocess_stereo(
         Raw frames at t0, t1, t2 of the left and right camera.
     scale : float
         Shared normalisation scale in radiance units.
-    curves, maps, shift01, shift12 : pairs (left, right)
-        Per-camera characteristic curve, rectification maps and known t0 -> t1 and
-        t1 -> t2 shifts.
+    curves, maps, shift01, shift12, diff0 : pairs (left, right)
+        Per-camera characteristic curve, rectification maps, known t0 -> t1 and
+        t1 -> t2 shifts and known D(t0) (:func:`preprocess_camera`).
     register, denoise_lambda, max_shift_px, gas_radiance, min_contrast
         As in :func:`preprocess_camera`, the same for both cameras.
 
@@ -373,6 +391,7 @@ def preprocess_stereo(
             max_shift_px=max_shift_px,
             gas_radiance=gas_radiance,
             min_contrast=min_contrast,
+            diff0=diff0[k],
         )
         for k, frames in enumerate((left, right))
     )

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from processing.preprocess import order_statistics
 from processing.validation import as_float_image, check_positive
 
 
@@ -55,7 +56,7 @@ def pooled_quantile(diffs: Sequence[np.ndarray], quantile: float = 0.999) -> flo
     pooled = np.concatenate(
         [np.abs(as_float_image(d, "diff")[::2, ::2]).ravel() for d in diffs]
     )
-    return float(np.quantile(pooled, quantile))
+    return order_statistics.quantile(pooled, quantile)
 
 
 class DiffScaleTracker:
