@@ -36,6 +36,7 @@ import numpy as np
 
 from appliance.evaluation.robustness import FIELD_DISPARITY_OPTIONS
 from appliance.evaluation.sceneflow_figures import _line_panel
+from appliance.paths import walk
 from processing.calibration import load_calibration
 from processing.chain import (
     ChainParameters,
@@ -64,7 +65,7 @@ def find_emission_sequences(data: Path) -> list[Path]:
     if not data.exists():
         raise ValueError(f"{data} does not exist; write sequences with ogiflow simulate "
                          f"--preset field --out {data}/NAME (see benchmarks/emission_sequences.sh)")
-    found = sorted(p.parent for p in data.rglob(META_NAME))
+    found = sorted(p.parent for p in walk(data) if p.name == META_NAME and p.is_file())
     if not found:
         raise ValueError(f"{data} holds no sequence written by ogiflow simulate (no meta.json)")
     return found

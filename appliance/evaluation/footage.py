@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 
 from appliance.live.colour import flow_bgr
+from appliance.paths import walk
 from appliance.runtime.single_camera import MonoTriple, mono_triple
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
@@ -100,7 +101,7 @@ def find_sets(data: Path) -> dict[str, list[tuple[int, Path]]]:
     if not data.is_dir():
         raise ValueError(f"--data {data} is not a directory")
     sets: dict[str, list[tuple[int, Path]]] = {}
-    for sub in sorted(p for p in data.rglob("*") if p.is_dir()):
+    for sub in sorted(p for p in walk(data) if p.is_dir()):
         frames = []
         for f in sub.iterdir():
             m = FRAME_NUMBER.search(f.name)

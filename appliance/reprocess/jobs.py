@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from appliance.paths import walk
 from appliance.reprocess.source import parse_override
 
 #: Recordings the appliance writes (closed) or left open when killed (``.active``).
@@ -41,7 +42,7 @@ def expand_inputs(inputs: Iterable[str], exclude: Path | None = None) -> list[Pa
         matches = []
         for path in named:
             if path.is_dir():
-                matches += [p for p in path.rglob("*") if p.name.endswith(RECORDING_SUFFIXES)]
+                matches += [p for p in walk(path) if p.name.endswith(RECORDING_SUFFIXES)]
             else:
                 matches.append(path)
         matches = [p.resolve() for p in matches if p.is_file()]
