@@ -26,6 +26,31 @@ def _system(h: int, w: int, seed: int) -> dict[str, np.ndarray]:
     )
 
 
+def _pack(s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The compact red and black coefficient arrays of a full-grid system (the module
+    docstring's layout), assembled in numpy as the test's reference."""
+    h, w = s["a11"].shape
+    red, black = redblack.empty_system(h, w)
+    planes = {}
+    for k, (wx, wy) in enumerate(((s["wx1"], s["wy1"]), (s["wx2"], s["wy2"]))):
+        left = np.zeros_like(wx)
+        left[:, 1:] = wx[:, :-1]
+        up = np.zeros_like(wy)
+        up[1:, :] = wy[:-1, :]
+        first = redblack.W1 if k == 0 else redblack.W2
+        planes.update({first: left, first + 1: wx, first + 2: up, first + 3: wy})
+        diag = s["a11"] if k == 0 else s["a22"]
+        planes[redblack.INV_D1 if k == 0 else redblack.INV_D2] = (
+            np.float32(1.0) / (diag + left + wx + up + wy))
+    planes.update({redblack.A12: s["a12"], redblack.R1: s["r1"], redblack.R2: s["r2"]})
+    yy, xx = np.mgrid[0:h, 0:w]
+    for colour, out in ((0, red), (1, black)):
+        sel = ((yy + xx) & 1) == colour
+        for plane, value in planes.items():
+            out[plane, yy[sel] + 1, xx[sel] // 2 + 1] = value[sel]
+    return red, black
+
+
 def _direct(s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     h, w = s["a11"].shape
     n = h * w
@@ -62,20 +87,7 @@ def _direct(s: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize(("h", "w"), [(9, 12), (10, 11), (7, 7)])
 def test_sor_matches_direct_solve(h: int, w: int) -> None:
     s = _system(h, w, seed=h * 100 + w)
-    red, black = redblack.empty_system(h, w)
-    redblack.pack_system(
-        s["a11"],
-        s["a12"],
-        s["a22"],
-        s["r1"],
-        s["r2"],
-        s["wx1"],
-        s["wy1"],
-        s["wx2"],
-        s["wy2"],
-        red,
-        black,
-    )
+    red, black = _pack(s)
     cshape = redblack.compact_shape(h, w)
     x = [np.zeros(cshape, np.float32) for _ in range(4)]
     redblack.solve_sor(red, black, *x, 2000, 1.5)
@@ -99,11 +111,7 @@ def test_split_merge_round_trip() -> None:
 
 
 def _packed(h: int, w: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    s = _system(h, w, seed)
-    red, black = redblack.empty_system(h, w)
-    redblack.pack_system(s["a11"], s["a12"], s["a22"], s["r1"], s["r2"], s["wx1"], s["wy1"],
-                         s["wx2"], s["wy2"], red, black)
-    return red, black
+    return _pack(_system(h, w, seed))
 
 
 @pytest.mark.parametrize(("h", "w", "n_iter"), [(9, 12, 5), (40, 33, 8), (3, 5, 12)])

@@ -4,8 +4,8 @@ At each lagged fixed-point iteration (Brox et al. 2004) the flow solver (paper E
 the joint disparity solver (Eq. 6) freeze the Charbonnier weights psi'(|grad f|^2) of their
 smoothness terms and turn them into edge weights of the linear system that
 :mod:`processing.solvers.redblack` solves. Assembling a system on the full grid and scattering it
-with :func:`processing.solvers.redblack.pack_system` costs about as much as ten SOR iterations
-(stride-2 scatter of 13 planes), so the solvers keep their unknowns and inputs compact for a
+into the compact layout costs about as much as ten SOR iterations (stride-2 scatter of 13
+planes), so the solvers keep their unknowns and inputs compact for a
 whole warp and compute psi', edge weights and diagonals per colour here, with contiguous,
 vectorisable row loops. :func:`lagged_iterations` is the inner loop of one warp for both
 solvers; each brings its own data terms (:func:`data_terms`, :func:`after_solve`).

@@ -53,87 +53,6 @@ def empty_system(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(shape, np.float32), np.zeros(shape, np.float32)
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
-def _pack_colour(
-    a11: np.ndarray,
-    a12: np.ndarray,
-    a22: np.ndarray,
-    r1: np.ndarray,
-    r2: np.ndarray,
-    wx1: np.ndarray,
-    wy1: np.ndarray,
-    wx2: np.ndarray,
-    wy2: np.ndarray,
-    c: np.ndarray,
-    colour: int,
-) -> None:
-    h, w = a11.shape
-    for y in range(h):
-        yc = y + 1
-        # Index -1 wraps to the last column/row, which is zero by contract: the left
-        # weight of x = 0 and the upper weight of y = 0 come out as 0 without a branch.
-        for x in range((y + colour) & 1, w, 2):
-            xc = x // 2 + 1
-            l1 = wx1[y, x - 1]
-            r1w = wx1[y, x]
-            u1 = wy1[y - 1, x]
-            d1 = wy1[y, x]
-            l2 = wx2[y, x - 1]
-            r2w = wx2[y, x]
-            u2 = wy2[y - 1, x]
-            d2 = wy2[y, x]
-            c[INV_D1, yc, xc] = 1.0 / (a11[y, x] + l1 + r1w + u1 + d1)
-            c[A12, yc, xc] = a12[y, x]
-            c[INV_D2, yc, xc] = 1.0 / (a22[y, x] + l2 + r2w + u2 + d2)
-            c[R1, yc, xc] = r1[y, x]
-            c[R2, yc, xc] = r2[y, x]
-            c[W1_LEFT, yc, xc] = l1
-            c[W1_RIGHT, yc, xc] = r1w
-            c[W1_UP, yc, xc] = u1
-            c[W1_DOWN, yc, xc] = d1
-            c[W2_LEFT, yc, xc] = l2
-            c[W2_RIGHT, yc, xc] = r2w
-            c[W2_UP, yc, xc] = u2
-            c[W2_DOWN, yc, xc] = d2
-
-
-@numba.njit(cache=True, error_model="numpy")
-def pack_system(
-    a11: np.ndarray,
-    a12: np.ndarray,
-    a22: np.ndarray,
-    r1: np.ndarray,
-    r2: np.ndarray,
-    wx1: np.ndarray,
-    wy1: np.ndarray,
-    wx2: np.ndarray,
-    wy2: np.ndarray,
-    red: np.ndarray,
-    black: np.ndarray,
-) -> None:
-    """Scatter full-grid coefficients into the compact red and black arrays (in place).
-
-    Parameters
-    ----------
-    a11, a12, a22, r1, r2 : ndarray, shape (H, W), float32
-        Data block and right-hand side of every pixel.
-    wx1, wx2 : ndarray, shape (H, W), float32
-        Weight of the edge between (y, x) and (y, x+1) for unknown 1 and 2. The last
-        column MUST be zero (there is no right neighbour).
-    wy1, wy2 : ndarray, shape (H, W), float32
-        Weight of the edge between (y, x) and (y+1, x). The last row MUST be zero.
-    red, black : ndarray, shape (13, H+2, W2+2), float32
-        Output, see the module docstring. Every diagonal A11 + sum(w1) and A22 + sum(w2)
-        must be positive, which holds whenever the smoothness weights are positive.
-        Entries outside the image (halo, and the last compact column when W is odd) keep
-        zero weights and coefficients: they are never coupled to real pixels.
-    """
-    red[:] = 0.0
-    black[:] = 0.0
-    _pack_colour(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, red, 0)
-    _pack_colour(a11, a12, a22, r1, r2, wx1, wy1, wx2, wy2, black, 1)
-
-
 @numba.njit(cache=True, error_model="numpy")
 def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
     """Scatter a full-grid field (H, W) into compact red/black arrays (H+2, W2+2), in place."""
@@ -252,7 +171,7 @@ def solve_sor(
     Parameters
     ----------
     red, black : ndarray, shape (13, H+2, W2+2), float32
-        Coefficients from :func:`pack_system` (or the lagged solvers' kernels).
+        Coefficients (the lagged solvers' kernels, :mod:`processing.solvers.lagged`).
     x1r, x1b, x2r, x2b : ndarray, shape (H+2, W2+2), float32
         Unknowns 1 and 2 in compact red/black form (initial guess in, solution out).
     n_iter : int
