@@ -38,7 +38,7 @@ import cv2
 import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
-from processing.preprocess.order_statistics import robust_spread
+from processing.preprocess.order_statistics import mad_spread
 from processing.stereo.sgm import sgbm_disparity
 from processing.validation import as_float_image, check_same_shape
 
@@ -140,7 +140,7 @@ def out_of_band_motion(
     n_disp = int(16 * np.ceil(hi / 16.0))
     n_disp = min(n_disp, 16 * ((w - 8) // 16))
     d, valid = _coarse_sgbm(il, ir, n_disp, sgbm_downsample)
-    noise = robust_spread(il) + 1e-6  # of a mostly still image
+    noise = mad_spread(il) + 1e-6  # of a mostly still image
     active = np.abs(il - 0.5) > max(ACTIVITY_SIGMAS * noise, ACTIVITY_FLOOR)
     measured = valid & active
     # SGBM's blocks are cut by the right border, where it returns d ~ 0 on any texture

@@ -98,7 +98,7 @@ def _median(values: np.ndarray) -> np.float32:
 @numba.njit(cache=True, error_model="numpy")
 def _spread(image: np.ndarray) -> float:
     """1.4826 * median |a - median(a)| of every 2nd pixel of ``image`` (H, W) float32 in
-    each direction, the medians as numpy's (:func:`robust_spread`)."""
+    each direction, the medians as numpy's (:func:`mad_spread`)."""
     sub = image[::2, ::2]
     flat = np.empty(sub.size, np.float32)
     n = 0
@@ -136,7 +136,7 @@ def median(values: np.ndarray) -> float:
     return float(_median(_float32(values, "values").ravel()))
 
 
-def robust_spread(image: np.ndarray) -> float:
+def mad_spread(image: np.ndarray) -> float:
     """1.4826 * median |a - median(a)| of every 2nd pixel in each direction: the noise of
     a mostly still differential image, in its units.
 
