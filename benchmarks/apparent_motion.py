@@ -25,11 +25,8 @@ import cv2
 import numpy as np
 
 from appliance.evaluation import robustness
-from appliance.evaluation.gas_cache import gas_frames
 from appliance.evaluation.matrix_file import load_matrix
-from appliance.evaluation.sceneflow_setup import rectified_truth
 from processing.chain import ChainState, compute_scene_flow
-from processing.synthetic.cameras import StereoRenderer
 from processing.synthetic.reference import eq4_reference
 
 SCALES = tuple(np.round(np.arange(0.85, 1.351, 0.05), 2))
@@ -85,14 +82,9 @@ def main(argv: list[str] | None = None) -> int:
     if scene is None or cond is None:
         ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
                  f"{args.matrix} ({args.part})")
-    base = robustness.scene_config(scene, matrix, cond.release_rate_g_s, cond.lens_k1)
-    gas = gas_frames(base, args.cache)
-    cfg = robustness.condition_config(base, cond)
-    geometry = robustness.condition_geometry(cfg, cond)
-    renderer = StereoRenderer(cfg)
-    frames = [rectified_truth(renderer.render(g), geometry) for g in gas]
-    params, state = robustness.chain_parameters(cfg), ChainState()
-    cam = cfg.effective_camera()
+    frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    state = ChainState()
+    s_px, b_m = geometry.camera_constant, geometry.baseline
     print(f"{scene.name} {cond.name}: per triple, on segmented gas pixels")
     print("triple  flow/reference  best s  residual(s=1)  residual(reference)")
     rows = []
@@ -101,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
                                  [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
         dt = f1.t_s - f0.t_s
-        r0, r1 = (eq4_reference(f.gt_position, f.gt_velocity, cam.s_px, cam.b_m, dt)
+        r0, r1 = (eq4_reference(f.gt_position, f.gt_velocity, s_px, b_m, dt)
                   for f in (f0, f1))
         ref = np.stack([0.5 * (r0.u + r1.u), 0.5 * (r0.v + r1.v)], axis=-1)
         mask = res.gas_mask & res.valid & f0.gt_mask & np.all(np.isfinite(ref), axis=-1)

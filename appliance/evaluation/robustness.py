@@ -32,6 +32,7 @@ from processing.synthetic.cameras import StereoRenderer
 from processing.synthetic.config import RenderOptions, SequenceConfig, synthetic_calibration
 from processing.synthetic.imaging import Background, MovingObject
 from processing.synthetic.presets import preset_field
+from processing.synthetic.storage import SyntheticFrame
 
 #: The warm object of the matrix: a 0.4 m disk 8 m away (behind the plume at 5.5 m, in
 #: front of the plant wall at 12 m), 10 K above ambient, crossing the view at 1.2 m/s
@@ -248,6 +249,21 @@ def scene_band(config: SequenceConfig) -> tuple[float, int]:
 ParamsHook = Callable[[ChainParameters], ChainParameters]
 
 
+def scene_frames(matrix: Matrix, scene: Scene, cond: Condition, cache_dir: Path | None,
+                 log: Log | None = None
+                 ) -> tuple[list[SyntheticFrame], StereoGeometry, ChainParameters]:
+    """One scene under one condition as the chain sees it: the rectified frames with their
+    truth, the geometry the chain is given and the chain's parameters (the gas simulated
+    once per scene and cached in ``cache_dir``)."""
+    base = scene_config(scene, matrix, cond.release_rate_g_s, cond.lens_k1)
+    gas = gas_frames(base, cache_dir, log)
+    cfg = condition_config(base, cond)
+    renderer = StereoRenderer(cfg)
+    geometry = condition_geometry(cfg, cond)
+    frames = [rectified_truth(renderer.render(g), geometry) for g in gas]
+    return frames, geometry, chain_parameters(cfg)
+
+
 def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, *,
                        params_hook: ParamsHook | None = None,
                        log: Log | None = None) -> Metrics:
@@ -263,13 +279,7 @@ def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, 
     pooled: list[Metrics] = []
     flags: dict[str, int] = {}
     for scene in matrix.scenes:
-        base = scene_config(scene, matrix, cond.release_rate_g_s, cond.lens_k1)
-        gas = gas_frames(base, cache_dir, log)
-        cfg = condition_config(base, cond)
-        renderer = StereoRenderer(cfg)
-        geometry = condition_geometry(cfg, cond)
-        frames = [rectified_truth(renderer.render(g), geometry) for g in gas]
-        params = chain_parameters(cfg)
+        frames, geometry, params = scene_frames(matrix, scene, cond, cache_dir, log)
         if params_hook is not None:
             params = params_hook(params)
         summary, _ = evaluate_frames(frames, geometry, params,
