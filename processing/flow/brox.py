@@ -29,7 +29,7 @@ from processing.validation import (
 )
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def _compact_data_terms(
     iz: np.ndarray,
     ix: np.ndarray,

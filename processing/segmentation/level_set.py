@@ -116,7 +116,11 @@ def _atan(z: float) -> float:
     return r if z >= 0 else -r
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+# Compiled into descend(): only the fastmath flags that give the same code whether this is
+# compiled fresh with its caller or loaded from numba's cache (fused multiply-adds,
+# reciprocal and function approximations do not; docs/design.md). Reassociation lets the
+# sums vectorise (3.9 ms per segmentation without any flag, 2.1 with these, 1.9 with all).
+@numba.njit(cache=True, fastmath={"reassoc", "nsz", "nnan", "ninf"}, error_model="numpy")
 def _region_moments(
     features: np.ndarray, phi: np.ndarray, eps: float, stride: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +200,8 @@ def _region_moments(
     return gas, bg
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+# Compiled into descend(): see _region_moments for the flags.
+@numba.njit(cache=True, fastmath={"nsz", "nnan", "ninf"}, error_model="numpy")
 def _apply_force(
     features: np.ndarray,
     mean_g: np.ndarray,

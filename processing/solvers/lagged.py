@@ -9,6 +9,12 @@ planes), so the solvers keep their unknowns and inputs compact for a
 whole warp and compute psi', edge weights and diagonals per colour here, with contiguous,
 vectorisable row loops. :func:`lagged_iterations` is the inner loop of one warp for both
 solvers; each brings its own data terms (:func:`data_terms`, :func:`after_solve`).
+
+No kernel compiled into :func:`lagged_iterations` (these, the SOR sweeps, both solvers'
+data terms) uses ``fastmath``: compiled fresh together with the skeleton it gave other
+rounding than the same kernels loaded from numba's cache, so the first run after a code
+change read other numbers than every later one (docs/design.md,
+tests/test_compile_determinism.py).
 """
 
 from __future__ import annotations
@@ -83,7 +89,7 @@ def _fill_neumann_ghosts(red: np.ndarray, black: np.ndarray, width: int) -> None
     red[last + 1, :] = black[last, :]
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def _gradient_sq(own: np.ndarray, other: np.ndarray, colour: int, out: np.ndarray) -> None:
     """Add |grad f|^2 at the pixels of one colour to ``out`` (centred differences).
 
@@ -106,7 +112,7 @@ def _gradient_sq(own: np.ndarray, other: np.ndarray, colour: int, out: np.ndarra
             o[i] += gx * gx + gy * gy
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def _charbonnier_prime(s2: np.ndarray, eps: float, out: np.ndarray) -> None:
     """out = 1 / sqrt(s2 + eps^2) elementwise on compact arrays (lagged psi')."""
     e2 = np.float32(eps * eps)
@@ -152,7 +158,7 @@ def lagged_psi(
         _charbonnier_prime(s2, eps, psi[c])
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def edge_weights(
     psi_own: np.ndarray,
     psi_other: np.ndarray,
@@ -190,7 +196,7 @@ def edge_weights(
             wd[i] = half * (p[i] + pd[i]) * md[i]
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int) -> None:
     """Store 1 / (A11 + sum w1) and 1 / (A22 + sum w2) in the INV_D planes of ``coef``.
 

@@ -86,7 +86,7 @@ def merge_field(red: np.ndarray, black: np.ndarray, out: np.ndarray) -> None:
             dst[w - 1] = even[w >> 1]
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def _sweep_row(
     coef: np.ndarray,
     x1: np.ndarray,
@@ -145,7 +145,7 @@ def _sweep_row(
         v[i] = o2 + omega * ((r2[i] - a12[i] * n1 + s2) * inv2[i] - o2)
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def solve_sor(
     red: np.ndarray,
     black: np.ndarray,

@@ -16,7 +16,7 @@ from processing.solvers import redblack
 MAX_CONSTANT_STEP_PX = 0.5
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def constant_mode_step(
     coefs: tuple[np.ndarray, np.ndarray],
     a11: tuple[np.ndarray, np.ndarray],

@@ -16,7 +16,7 @@ import numpy as np
 from processing.solvers import derivatives
 
 
-@numba.njit(cache=True, fastmath=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def data_terms(
     e1: np.ndarray,
     e3: np.ndarray,
