@@ -22,7 +22,12 @@ from processing.emission import (
     ppm_m_to_kg_m2,
 )
 from processing.emission.column import BackgroundModel, nanmedian_first_axis
-from processing.emission.estimator import CurtainRates, EmissionEstimator, EmissionSettings
+from processing.emission.estimator import (
+    CurtainRates,
+    EmissionEstimator,
+    EmissionSettings,
+    grow_mask,
+)
 
 S_PX, CX, CY = 780.0, 159.5, 119.5
 H, W = 240, 320
@@ -384,3 +389,18 @@ def test_estimator_keeps_a_wide_margin_around_the_gas_out_of_the_background() ->
     expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
                               temperature_k=t_gas)
     assert sigma[45:55, 75:85] == pytest.approx(np.full((10, 10), expected), rel=0.01)
+
+
+@pytest.mark.parametrize("steps", [0, 1, 4, 30])
+def test_grow_mask_is_scipys_iterated_binary_dilation(steps: int) -> None:
+    """The estimator's mask growth equals ``scipy.ndimage.binary_dilation(mask,
+    iterations=steps)`` to the bit, also where the mask touches the image's edge."""
+    from scipy import ndimage
+
+    rng = np.random.default_rng(steps)
+    mask = rng.random((48, 64)) > 0.97
+    mask[0, 10] = mask[47, 63] = mask[20, 0] = True  # on the edges
+    grown = grow_mask(mask, steps)
+    assert grown.dtype == bool and grown.shape == mask.shape
+    expected = ndimage.binary_dilation(mask, iterations=steps) if steps else mask
+    np.testing.assert_array_equal(grown, expected)
