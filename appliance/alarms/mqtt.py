@@ -33,6 +33,7 @@ import paho.mqtt.client as mqtt
 
 from appliance.alarms.sink import AlarmSink, SinkStats
 from appliance.alarms.throttle import EventThrottle
+from appliance.threads import NamedThread
 
 log = logging.getLogger("ogiflow.alarms")
 
@@ -124,8 +125,8 @@ class MqttSink(AlarmSink):
         c.on_connect = self._on_connect
         c.on_disconnect = self._on_disconnect
         self._client = c
-        self._sender = threading.Thread(target=self._send_loop, name="mqtt-sender",
-                                        daemon=True)
+        self._sender = NamedThread(target=self._send_loop, name="mqtt-sender",
+                                   daemon=True)
 
     def topic(self, name: str) -> str:
         return f"{self.cfg.topic_prefix}/{name}"

@@ -43,6 +43,7 @@ from appliance.live.items import LiveFrame, LiveScalars, LiveStats, health_scala
 from appliance.live.server import LiveViewError, ViewerServer, start_viewer_server
 from appliance.live.status import OperatorStatus
 from appliance.memory import with_mimalloc_purge
+from appliance.threads import NamedThread
 
 __all__ = [
     "LiveFrame",
@@ -190,7 +191,7 @@ class LiveView:
             self._pending_blueprint = bp
         else:
             raise ValueError(f"live.mode: unknown mode {mode!r}")
-        self._thread = threading.Thread(target=self._run, name="live-view", daemon=True)
+        self._thread = NamedThread(target=self._run, name="live-view", daemon=True)
         self._thread.start()
         return self
 

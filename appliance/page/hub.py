@@ -39,6 +39,7 @@ import numpy as np
 from appliance.live.colour import encode_jpeg, operator_arrows, operator_bgr
 from appliance.live.items import LiveFrame
 from appliance.live.status import OperatorStatus
+from appliance.threads import NamedThread
 
 __all__ = ["FRAMES_KEPT", "OVERLAY_MAX_AGE_S", "EncodedFrame", "HubStats", "PageHub",
            "json_text"]
@@ -304,8 +305,8 @@ class PageHub:
 
     def start(self) -> PageHub:
         with self._cond:
-            self._thread = threading.Thread(target=self._run, name="page-encoder",
-                                            daemon=True)
+            self._thread = NamedThread(target=self._run, name="page-encoder",
+                                       daemon=True)
         self._thread.start()
         return self
 

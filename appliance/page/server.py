@@ -33,6 +33,7 @@ from typing import Any
 
 from appliance.config.schema import ConfigError
 from appliance.page.hub import PageHub, json_text
+from appliance.threads import NamedThread
 
 __all__ = ["ClientFeed", "PageServer", "ServerStats"]
 
@@ -181,8 +182,8 @@ class PageServer:
         sock = self._bind()
         self.port = int(sock.getsockname()[1])
         started: concurrent.futures.Future[None] = concurrent.futures.Future()
-        self._thread = threading.Thread(target=self._serve, args=(sock, started),
-                                        name="page-http", daemon=True)
+        self._thread = NamedThread(target=self._serve, args=(sock, started),
+                                   name="page-http", daemon=True)
         self._thread.start()
         started.result(timeout=30)
         self.hub.broadcast = self._broadcast_threadsafe

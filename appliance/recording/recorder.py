@@ -47,6 +47,7 @@ from appliance.recording.files import (
 from appliance.recording.quota import delete_oldest_over_quota
 from appliance.recording.recovery import recover_unfinished
 from appliance.recording.schemas import MessageSchema
+from appliance.threads import NamedThread
 
 __all__ = [
     "FILE_PATTERN",
@@ -214,7 +215,7 @@ class Recorder:
         self._open_new()
         self._enforce_quota()
         self._accepting = True
-        self._thread = threading.Thread(target=self._run, name="mcap-recorder", daemon=True)
+        self._thread = NamedThread(target=self._run, name="mcap-recorder", daemon=True)
         self._thread.start()
         return self
 

@@ -63,6 +63,7 @@ from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.single_camera import probe_image_size
 from appliance.runtime.worker_result import WorkerResult
+from appliance.threads import NamedThread
 from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import Mounting
 from processing.calibration import load_calibration
@@ -389,8 +390,8 @@ class Appliance:
                 break
 
     def _spawn(self, target: Any, name: str, *args: Any) -> threading.Thread:
-        t = threading.Thread(target=self._guarded, name=name, args=(target, name, *args),
-                             daemon=True)
+        t = NamedThread(target=self._guarded, name=name, args=(target, name, *args),
+                        daemon=True)
         t.start()
         self._threads.append(t)
         return t

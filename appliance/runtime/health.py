@@ -24,6 +24,7 @@ from typing import Any
 from appliance.live.view import health_scalars
 from appliance.recording.schemas import HEALTH, encode_json
 from appliance.runtime.sdnotify import SdNotifier, Watchdog
+from appliance.threads import NamedThread
 
 __all__ = [
     "HealthMonitor",
@@ -311,7 +312,7 @@ class HealthReporter:
         self.watchdog = watchdog
         self.last: HealthSnapshot | None = None
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="health", daemon=True)
+        self._thread = NamedThread(target=self._run, name="health", daemon=True)
 
     def start(self) -> HealthReporter:
         """Start the thread."""

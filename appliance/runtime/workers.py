@@ -37,6 +37,7 @@ from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import SharedShiftMemo
 from appliance.runtime.single_camera import SingleCameraWorker, window_camera
 from appliance.runtime.worker_result import WorkerResult, pack_result, pack_single
+from appliance.threads import set_os_thread_name
 from processing.chain.driver import (
     ChainParameters,
     ChainState,
@@ -105,6 +106,7 @@ def worker_main(
         None: every result carries them.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    set_os_thread_name(f"ogiflow-worker{worker_id}")  # what top and ps show for the process
     keep_freed_memory()
     single_threaded()
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
