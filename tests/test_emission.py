@@ -293,6 +293,22 @@ def test_nanmedian_first_axis_is_numpys_nanmedian(n: int) -> None:
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-6, equal_nan=True)
 
 
+@pytest.mark.parametrize("block", [7, 99, 4096])
+def test_nanmedian_first_axis_drops_samples_as_if_they_were_nan(block: int) -> None:
+    """``drop`` leaves samples out exactly as NaN would, whatever the block size (blocks
+    that split the pixels unevenly included)."""
+    rng = np.random.default_rng(block)
+    stack = rng.normal(0.0, 1.0, (12, 9, 11)).astype(np.float32)
+    drop = rng.random(stack.shape) < 0.5
+    drop[:, 2, 3] = True  # a pixel with every sample dropped
+    want = nanmedian_first_axis(np.where(drop, np.nan, stack), block=block)
+    got = nanmedian_first_axis(stack, drop=drop, block=block)
+    np.testing.assert_array_equal(got, want)
+    assert np.isnan(got[2, 3])
+    np.testing.assert_array_equal(nanmedian_first_axis(stack, block=block),
+                                  nanmedian_first_axis(stack, block=10 ** 6))
+
+
 def test_gas_cell_fit_recovers_a_known_coefficient() -> None:
     alpha = 4.2e-5
     l_bb, l_gas = float(band_radiance(323.15)), float(band_radiance(293.15))

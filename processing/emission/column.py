@@ -107,8 +107,9 @@ class BackgroundModel:
     to see the pixel free of gas. :attr:`fallback_fraction` reports the share of filled
     pixels. The estimate is refreshed every ``refresh`` updates while the stack fills and
     every ``capacity`` updates once it is full: a background changes over minutes, and a
-    median over a full stack of 320 x 240 frames costs about 30 ms
-    (:func:`nanmedian_first_axis`; 160 ms with ``np.nanmedian``, measured).
+    median over a full stack of 320 x 240 frames costs about 20 ms
+    (:func:`nanmedian_first_axis`; 160 ms with ``np.nanmedian``, measured), the spatial
+    fill when a plume covers a third of the frame about 27 ms more.
 
     Parameters
     ----------
@@ -176,7 +177,7 @@ def nanmedian_first_axis(stack: np.ndarray, drop: np.ndarray | None = None,
     number), by one sort of the pixels' sample rows, ``block`` pixels at a time.
 
     ``np.nanmedian`` takes a masked-array path for short axes: 160-290 ms for 60 frames of
-    320 x 240, this about 30 ms (measured), the same values up to float rounding. The
+    320 x 240, this about 20 ms (measured), the same values up to float rounding. The
     blocks keep every temporary in the cache: the whole stack at once allocated three
     copies of it (18 MB each) and took 55-60 ms, 450 ms when the memory had just been
     returned to the system (page faults, 350 ms of system time, measured).
