@@ -140,9 +140,34 @@ def _check_processing(cfg: Config, errors: list[str]) -> None:
     from processing.chain.driver import ChainParameters
 
     try:
-        ChainParameters.from_mapping(cfg.processing.parameters)
+        params = ChainParameters.from_mapping(cfg.processing.parameters)
     except (ValueError, TypeError) as exc:
         errors.append(f"processing.parameters: {exc}")
+        return
+    size = _stereo_image_size(cfg) if params.binning > 1 else None
+    if size is not None:
+        from processing.chain.binning import check_binning
+
+        try:
+            check_binning(size, params.binning)
+        except ValueError as exc:
+            errors.append(f"processing.parameters.binning: {exc}")
+
+
+def _stereo_image_size(cfg: Config) -> tuple[int, int] | None:
+    """(W, H) of the stereo pair's frames, px: the calibration file's, else the simulated
+    cameras'; None when neither says (a single camera, or a calibration error reported)."""
+    from processing.calibration import load_calibration
+
+    if cfg.calibration is not None:
+        try:
+            size = load_calibration(cfg.calibration).image_size
+        except (ValueError, OSError, TypeError, KeyError):
+            return None
+        return int(size[0]), int(size[1])
+    if cfg.cameras.right is None:
+        return None
+    return int(cfg.simulation.width_px), int(cfg.simulation.height_px)
 
 
 def validate_config(data: Any, source: str = "config") -> Config:

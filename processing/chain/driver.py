@@ -32,6 +32,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from processing.calibration.radiometric import CharacteristicCurve
+from processing.chain.binning import (
+    bin_image,
+    binned_geometry,
+    binned_parameters,
+    upsampled_result,
+)
 from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
 from processing.chain.parameters import ChainParameters
 from processing.chain.region import Box, choose_region, crop_inputs, paste_fields
@@ -92,6 +98,11 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     """
     params = params or ChainParameters()
     _check_frames(left, right, geometry)
+    k = params.binning
+    # From here on the chain works on k x k blocks: its settings and Eq. 4's geometry in
+    # blocks; the raw frames keep theirs for the correction (processing.chain.binning).
+    params = binned_parameters(params)
+    frames_geometry, geometry = geometry, binned_geometry(geometry, k)
     dt = frame_interval(times_s)
     times: Times = (float(times_s[0]), float(times_s[1]), float(times_s[2]))
     stream = state if state is not None else ChainState()
@@ -99,8 +110,8 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     follows = stream.follows(times)  # before the warm start replaces the previous triple
 
     fixed = stream.scale_to_use(params.diff_scale)
-    scale = fixed if fixed is not None else initial_scale(left, right, geometry, params)
-    pl, pr = _preprocess(left, right, times, geometry, params, stream, scale)
+    scale = fixed if fixed is not None else initial_scale(left, right, frames_geometry, params)
+    pl, pr = _preprocess(left, right, times, frames_geometry, params, stream, scale, k)
     clock.lap("preprocess")
     flags: list[str] = []
     blanked = None
@@ -137,13 +148,13 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
                   scene_change=cut or implausible, flow=flow, disparity=d, change=dd, mask=mask)
-    return SceneFlowResult(
+    return upsampled_result(SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
         valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=mask, phi=phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
-        warm=warm is not None, region=None if box is None else box.bounds)
+        warm=warm is not None, region=None if box is None else box.bounds), k)
 
 
 def _summary(velocity: np.ndarray, valid: np.ndarray, mask: np.ndarray, u_sf: np.ndarray,
@@ -194,23 +205,27 @@ def _check_frames(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
                 )
 
 
-def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None
-             ) -> np.ndarray:
-    """Radiometric correction and rectification of one raw frame."""
+def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None,
+             binning: int = 1) -> np.ndarray:
+    """Radiometric correction and rectification of one raw frame, then its k x k blocks'
+    means (``binning`` k)."""
     img = radiometric_correction(frame, curve)
-    return img if maps is None else apply_rectification(img, maps[0], maps[1])
+    img = img if maps is None else apply_rectification(img, maps[0], maps[1])
+    return bin_image(img, binning)
 
 
 def _preprocess(left: Sequence[np.ndarray], right: Sequence[np.ndarray], times: Times,
                 geometry: StereoGeometry, params: ChainParameters, stream: ChainState,
-                scale: float) -> Pair:
-    """Stage 1 (Sec. 4.1) for both cameras, each raw frame corrected only once per stream."""
+                scale: float, binning: int = 1) -> Pair:
+    """Stage 1 (Sec. 4.1) for both cameras, each raw frame corrected (and binned) only once
+    per stream."""
     known = stream.known_shifts(times)
     lg, contrast_floor = gas_radiance(params, geometry)
     # The corrected frames then go through pre-processing as they are (no curve, no maps).
     corrected = [
         stream.corrected_frames(cam, frames, times,
-                                lambda f, curve=curve, maps=maps: _correct(f, curve, maps))
+                                lambda f, curve=curve, maps=maps: _correct(f, curve, maps,
+                                                                           binning))
         for cam, (frames, curve, maps) in enumerate((
             (left, geometry.curve_left, geometry.maps_left),
             (right, geometry.curve_right, geometry.maps_right)))

@@ -25,6 +25,8 @@ WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
 #: and -0.28 m/s against 0.21 true; with the whole pyramid 0.23 and 0.17). One frame back the
 #: finest 6 levels are better (the whole pyramid read Table 3 and the robustness matrix worse).
 FAR_WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_inner": 2, "n_sor": 8}
+#: Largest block side of ``ChainParameters.binning``, px (4: a 1280x960 camera as 320x240).
+MAX_BINNING = 4
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
                                               "n_inner_finest": 2, "n_sor": 8}
 
@@ -130,6 +132,13 @@ class ChainParameters:
     far_warm_flow_options : mapping
         Overrides of ``flow_options`` on a warm start from a triple two frames back (two
         workers alternating, ``ChainState.stride`` 2), instead of ``warm_flow_options``.
+    binning : int
+        Work on the mean of each ``binning`` x ``binning`` block of the corrected,
+        rectified frames (:mod:`processing.chain.binning`): a 640x480 camera binned by 2
+        costs what a 320x240 one does. The fields come back at the camera's size; the
+        settings in px above (d0, the SGM range, the gate's tolerance, the largest motion,
+        the region's margin, the largest jitter) stay in camera pixels. 1 (the default)
+        works on every pixel.
     """
 
     alpha: float = 0.05
@@ -167,6 +176,7 @@ class ChainParameters:
         default_factory=lambda: dict(WARM_DISPARITY_OPTIONS))
     far_warm_flow_options: Mapping[str, Any] = field(
         default_factory=lambda: dict(FAR_WARM_FLOW_OPTIONS))
+    binning: int = 1
 
     def __post_init__(self) -> None:
         if self.disparity_init not in ("sgm", "d0"):
@@ -198,6 +208,10 @@ class ChainParameters:
         if not 0 < self.region_max_fraction <= 1:
             raise ValueError(f"region_max_fraction must be in (0, 1], "
                              f"got {self.region_max_fraction!r}")
+        if isinstance(self.binning, bool) or not isinstance(self.binning, int) \
+                or not 1 <= self.binning <= MAX_BINNING:
+            raise ValueError(f"binning must be an integer from 1 to {MAX_BINNING}, "
+                             f"got {self.binning!r}")
         if not 0 < self.scale_forgetting <= 1:
             raise ValueError(f"scale_forgetting must be in (0, 1], got {self.scale_forgetting!r}")
 

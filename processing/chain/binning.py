@@ -1,0 +1,146 @@
+"""Pixel binning: the chain on k x k blocks of a wide camera, the fields at camera size.
+
+A 640x480 camera (GF620 class) has four times the pixels of the 320x240 the chain keeps up
+with on a small box. ``ChainParameters.binning`` = k makes the chain average each k x k
+block of the corrected, rectified frames and work on the smaller images (k^2 fewer pixels,
+the temporal noise of a block k times lower), then return its fields at the camera's size,
+each block's value on all of its pixels, so that everything downstream (recording, live
+view, operator page, events, emission rate) sees the camera it is configured for.
+
+The geometry of the binned images: a block's centre is the mean of its pixels' centres,
+so a camera-pixel coordinate x is (x - (k - 1) / 2) / k in blocks, the camera constant is
+s / k and the baseline stays. The chain's settings in px stay in camera pixels (what a user
+measures on the camera's images) and are converted here; the motion and disparity fields
+come back in camera pixels too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+
+from processing.chain.parameters import ChainParameters
+from processing.chain.result import SceneFlowResult
+from processing.stereo_geometry import StereoGeometry
+
+__all__ = ["bin_image", "binned_geometry", "binned_parameters", "check_binning",
+           "upsampled_result"]
+
+
+def check_binning(image_size: tuple[int, int], k: int) -> None:
+    """Raise ValueError unless ``k`` divides both sides of ``image_size`` (W, H), px."""
+    w, h = image_size
+    if w % k or h % k:
+        raise ValueError(f"binning {k} does not divide the {w}x{h} camera image "
+                         f"(each side must be a multiple of {k})")
+
+
+def bin_image(image: np.ndarray, k: int) -> np.ndarray:
+    """Mean of each k x k block of ``image``.
+
+    Parameters
+    ----------
+    image : ndarray, shape (H, W), float32
+        A corrected, rectified frame; H and W multiples of k.
+    k : int
+        Block side, px.
+
+    Returns
+    -------
+    ndarray, shape (H / k, W / k), float32
+    """
+    if k == 1:
+        return image
+    h, w = image.shape
+    check_binning((w, h), k)
+    # OpenCV's area resampling at an integer factor is the block mean (tested against
+    # numpy's), 70x faster at 640x480 than numpy's mean over two axes (0.03 against 2.1 ms)
+    return cv2.resize(np.asarray(image, np.float32), (w // k, h // k),
+                      interpolation=cv2.INTER_AREA)
+
+
+def binned_geometry(geometry: StereoGeometry, k: int) -> StereoGeometry:
+    """The geometry of the binned, rectified images (Eq. 4's s, x0, y0 in blocks).
+
+    Rectification and the radiometric curves are applied before binning, so the binned
+    geometry has no maps; the curves stay (the gas radiance is taken from them).
+    """
+    if k == 1:
+        return geometry
+    w, h = geometry.image_size
+    check_binning((w, h), k)
+    x0, y0 = geometry.principal_point
+    half = (k - 1) / 2.0
+    return dataclasses.replace(
+        geometry, camera_constant=geometry.camera_constant / k,
+        principal_point=((x0 - half) / k, (y0 - half) / k),
+        image_size=(w // k, h // k), maps_left=None, maps_right=None)
+
+
+def binned_parameters(params: ChainParameters) -> ChainParameters:
+    """``params`` with their settings in camera pixels converted to blocks.
+
+    The SGM search range stays a multiple of 16 (rounded up: the band it covers never
+    shrinks); integer settings are rounded up. ``denoise_lambda`` (px^2) and the solvers'
+    options stay as they are: they are tuned to the images the chain works on, and the
+    defaults are those of 320x240, which a 640x480 camera binned by 2 becomes.
+    """
+    k = params.binning
+    if k == 1:
+        return params
+    return dataclasses.replace(
+        params,
+        d0=params.d0 / k,
+        sgm_num_disparities=16 * math.ceil(params.sgm_num_disparities / (16 * k)),
+        gate_tolerance_px=params.gate_tolerance_px / k,
+        max_motion_px=math.ceil(params.max_motion_px / k),
+        region_margin_px=math.ceil(params.region_margin_px / k),
+        max_jitter_px=params.max_jitter_px / k,
+        binning=1)
+
+
+def _grow(field: np.ndarray, k: int) -> np.ndarray:
+    """Each value of ``field`` (h, w[, c]) on its k x k block: (h k, w k[, c])."""
+    if field.dtype == np.bool_:
+        return _grow(field.view(np.uint8), k).view(np.bool_)
+    h, w = field.shape[:2]
+    if field.ndim == 3 and field.shape[2] > 4:
+        return np.ascontiguousarray(np.repeat(np.repeat(field, k, axis=0), k, axis=1))
+    # OpenCV's nearest neighbour at an integer factor takes source pixel floor(x / k):
+    # the same values as np.repeat (tested), several times faster at 640x480
+    out = cv2.resize(field, (w * k, h * k), interpolation=cv2.INTER_NEAREST)
+    return out.reshape(h * k, w * k, *field.shape[2:])
+
+
+def _shifts(shifts: tuple[tuple[float, float], tuple[float, float]], k: int
+            ) -> tuple[tuple[float, float], tuple[float, float]]:
+    return ((shifts[0][0] * k, shifts[0][1] * k), (shifts[1][0] * k, shifts[1][1] * k))
+
+
+def upsampled_result(res: SceneFlowResult, k: int) -> SceneFlowResult:
+    """The result of the binned chain at camera size: fields grown to k x k blocks,
+    motions and disparities (px) times k, registration shifts and the solvers' box in
+    camera pixels, the summary's pixel counts in camera pixels (its means unchanged: every
+    block counts k^2 times)."""
+    if k == 1:
+        return res
+    s = res.summary
+    region = None if res.region is None else tuple(int(b) * k for b in res.region)
+    return dataclasses.replace(
+        res,
+        diff_left=(_grow(res.diff_left[0], k), _grow(res.diff_left[1], k)),
+        diff_right=(_grow(res.diff_right[0], k), _grow(res.diff_right[1], k)),
+        flow=_grow(res.flow, k) * np.float32(k),
+        disparity=_grow(res.disparity, k) * np.float32(k),
+        disparity_change=_grow(res.disparity_change, k) * np.float32(k),
+        velocity=_grow(res.velocity, k), position=_grow(res.position, k),
+        valid=_grow(res.valid, k), u_sf=_grow(res.u_sf, k),
+        u_sf_valid=_grow(res.u_sf_valid, k), gas_mask=_grow(res.gas_mask, k),
+        phi=_grow(res.phi, k),
+        summary=dataclasses.replace(s, pixel_count=s.pixel_count * k * k,
+                                    gas_pixel_count=s.gas_pixel_count * k * k),
+        shifts_left=_shifts(res.shifts_left, k), shifts_right=_shifts(res.shifts_right, k),
+        region=region)  # type: ignore[arg-type]
