@@ -107,8 +107,6 @@ def _grow(field: np.ndarray, k: int) -> np.ndarray:
     if field.dtype == np.bool_:
         return _grow(field.view(np.uint8), k).view(np.bool_)
     h, w = field.shape[:2]
-    if field.ndim == 3 and field.shape[2] > 4:
-        return np.ascontiguousarray(np.repeat(np.repeat(field, k, axis=0), k, axis=1))
     # OpenCV's nearest neighbour at an integer factor takes source pixel floor(x / k):
     # the same values as np.repeat (tested), several times faster at 640x480
     out = cv2.resize(field, (w * k, h * k), interpolation=cv2.INTER_NEAREST)

@@ -9,7 +9,8 @@ others produce.
 
 Stages (paper section / equation):
 
-1. pre-processing (4.1): radiometric correction, rectification, jitter registration,
+1. pre-processing (4.1): radiometric correction, rectification (then, with ``binning``,
+   the means of k x k blocks: :mod:`processing.chain.binning`), jitter registration,
    differential images I_diff(t0) = I(t0) - I(t1) and I_diff(t1) = I(t1) - I(t2) (Eq. 2),
    Sobolev denoising, one normalisation to [0, 1] shared by both cameras;
 2. optical flow w_L between the left differential images (4.2, Eq. 5);
