@@ -420,3 +420,45 @@ def test_grow_mask_is_scipys_iterated_binary_dilation(steps: int) -> None:
     assert grown.dtype == bool and grown.shape == mask.shape
     expected = ndimage.binary_dilation(mask, iterations=steps) if steps else mask
     np.testing.assert_array_equal(grown, expected)
+
+
+@pytest.mark.parametrize("scale", [1.0, 2.0])
+def test_the_estimators_margins_grow_with_the_cameras_pixels(scale: float) -> None:
+    """The scene of the test above on a camera with twice the pixels (same field of view):
+    with ``pixel_scale`` 2 the faint gas 40-60 px beyond the segmentation is measured; with
+    the 320x240 settings unscaled the background takes it."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    cl = np.zeros((200, 240))
+    cl[90:110, 150:170] = 200.0
+    frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m)
+    mask = np.zeros(cl.shape, bool)
+    mask[80:120, 70:110] = True
+    est = EmissionEstimator(EmissionSettings(pixel_scale=scale), (120.0, 100.0), 2 * S_PX,
+                            None)
+    assert est.background.fill_sigma_px == 8.0 * scale
+    for _ in range(20):
+        sigma = est.column_kg_m2(frame, mask, t_gas)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    measured = float(np.median(sigma[90:110, 150:170]))
+    if scale == 2.0:
+        assert measured == pytest.approx(expected, rel=0.01)
+    else:
+        assert measured < 0.1 * expected
+
+
+def test_the_appliance_scales_the_estimator_to_the_cameras_width() -> None:
+    from appliance.runtime.emission_setup import EmissionSetup
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.chain import StereoGeometry
+    from processing.emission.estimator import EmissionSettings
+
+    setup = EmissionSetup(EmissionSettings(), curve_left=CharacteristicCurve(1000.0, 1e5))
+    for width, scale in ((320, 1.0), (640, 2.0)):
+        geo = StereoGeometry(camera_constant=780.0 * width / 320, principal_point=(0.0, 0.0),
+                             baseline=0.3, image_size=(width, width * 3 // 4))
+        est = setup.estimator(geo)
+        assert est is not None and est.settings.pixel_scale == scale

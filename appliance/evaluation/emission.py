@@ -46,7 +46,12 @@ from processing.chain import (
     compute_scene_flow,
 )
 from processing.emission import METHANE, RateWindow
-from processing.emission.estimator import CurtainRates, EmissionEstimator, EmissionSettings
+from processing.emission.estimator import (
+    TUNED_WIDTH_PX,
+    CurtainRates,
+    EmissionEstimator,
+    EmissionSettings,
+)
 from processing.emission.rate import LINE_OF_SIGHT_DEG
 from processing.emission.truth import true_curtain_flux
 from processing.synthetic import SyntheticFrame, read_frame, read_sequence_meta
@@ -135,8 +140,9 @@ def sequence_setup(directory: Path) -> SequenceSetup:
     gas = replace(METHANE, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
                   source="the scene's (a gas-cell calibration)")
     z_typed = typed_distance_m(meta)
-    estimator = EmissionEstimator(EmissionSettings(gas=gas, typed_distance_m=z_typed),
-                                  geometry.principal_point, geometry.camera_constant,
+    settings = EmissionSettings(gas=gas, typed_distance_m=z_typed,
+                                pixel_scale=geometry.image_size[0] / TUNED_WIDTH_PX)
+    estimator = EmissionEstimator(settings, geometry.principal_point, geometry.camera_constant,
                                   geometry.curve_left)
     return SequenceSetup(meta, geometry, chain_parameters(meta), estimator,
                          float(rad["t_gas_k"]), z_typed)

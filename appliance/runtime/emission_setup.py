@@ -18,6 +18,7 @@ from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.driver import SceneFlowResult, StereoGeometry
 from processing.emission.estimator import (
     DEFAULT_GAS_TEMPERATURE_K,
+    TUNED_WIDTH_PX,
     EmissionEstimator,
     EmissionSettings,
 )
@@ -72,7 +73,12 @@ class EmissionSetup:
         curve = geometry.curve_left or self.curve_left
         if curve is None:
             return None
-        return EmissionEstimator(self.settings, geometry.principal_point,
+        # the settings in px were measured on 320x240 frames; a wider camera of the same
+        # field of view sees the plume with more pixels (measured at 640x480 with them
+        # unscaled: the rate read 15 % low, the background taking the plume's faint edges)
+        settings = dataclasses.replace(
+            self.settings, pixel_scale=geometry.image_size[0] / TUNED_WIDTH_PX)
+        return EmissionEstimator(settings, geometry.principal_point,
                                  geometry.camera_constant, curve)
 
     def temperature_k(self, sonic_k: Any = None) -> float:

@@ -93,6 +93,10 @@ def column_density(radiance: np.ndarray, background: np.ndarray, gas_radiance: f
                          defined=defined, transmittance=tau.astype(np.float32))
 
 
+#: First scale of the spatial fill, px (of 320x240 frames, where it was chosen).
+FILL_SIGMA_PX = 8.0
+
+
 class BackgroundModel:
     """Background radiance without gas: per-pixel median of recent gas-free samples.
 
@@ -120,12 +124,16 @@ class BackgroundModel:
     refresh : int
         Recompute the median every this many updates while fewer than ``capacity`` frames
         are kept (afterwards every ``capacity`` updates).
+    fill_sigma_px : float
+        First scale of the spatial fill, px (:func:`spatial_fill`).
     """
 
-    def __init__(self, capacity: int = 60, min_samples: int = 8, refresh: int = 10) -> None:
+    def __init__(self, capacity: int = 60, min_samples: int = 8, refresh: int = 10,
+                 fill_sigma_px: float = FILL_SIGMA_PX) -> None:
         if capacity < 1 or not 1 <= min_samples <= capacity or refresh < 1:
             raise ValueError("need capacity >= 1, 1 <= min_samples <= capacity, refresh >= 1")
         self.capacity, self.min_samples, self.refresh = capacity, min_samples, refresh
+        self.fill_sigma_px = fill_sigma_px
         self._frames: np.ndarray | None = None
         self._gas: np.ndarray | None = None
         self._count = 0
@@ -157,7 +165,7 @@ class BackgroundModel:
         own = nanmedian_first_axis(frames, drop=gas & enough[None])
         self.fallback_fraction = float(1.0 - enough.mean())
         if enough.any() and not enough.all():
-            own = spatial_fill(own, enough)
+            own = spatial_fill(own, enough, self.fill_sigma_px)
         return own.astype(np.float32)
 
     def estimate(self) -> np.ndarray | None:
@@ -212,7 +220,8 @@ def nanmedian_first_axis(stack: np.ndarray, drop: np.ndarray | None = None,
     return med.reshape(stack.shape[1:])
 
 
-def spatial_fill(values: np.ndarray, known: np.ndarray, sigma_px: float = 8.0) -> np.ndarray:
+def spatial_fill(values: np.ndarray, known: np.ndarray,
+                 sigma_px: float = FILL_SIGMA_PX) -> np.ndarray:
     """``values`` where ``known``, elsewhere the normalised Gaussian average of the known
     values around (sigma doubling from ``sigma_px`` until every pixel is reached).
 

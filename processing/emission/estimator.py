@@ -22,14 +22,22 @@ from processing.calibration.radiometric import (
     apply_characteristic_curve,
     band_radiance,
 )
-from processing.emission.column import BackgroundModel, column_density
+from processing.emission.column import FILL_SIGMA_PX, BackgroundModel, column_density
 from processing.emission.curtains import Curtain, curtain_flux
 from processing.emission.gas import METHANE, STANDARD_PRESSURE_PA, GasProperties, ppm_m_to_kg_m2
-from processing.emission.placement import Placement, place_curtains
+from processing.emission.placement import (
+    EXCLUSION_PX,
+    MARGIN_PX,
+    MIN_PIXELS,
+    Placement,
+    place_curtains,
+)
 from processing.emission.rate import FrameRate, out_of_plane_deg, single_camera_velocity
 
 #: Gas temperature when neither the configuration nor an anemometer gives one (15 degC).
 DEFAULT_GAS_TEMPERATURE_K = 288.15
+#: Image width the settings in px were measured at (the simulated field scene, s = 780 px).
+TUNED_WIDTH_PX = 320
 
 
 @dataclass(frozen=True)
@@ -67,6 +75,12 @@ class EmissionSettings:
         density on the outer curtains of a 0.3-1 g/s release read 25-40 % low (measured
         against the simulator's column, ``benchmarks/emission_decomposition.py``); with 30 px
         the rate moved from -3.5 / -7.6 % to +4.0 / +1.4 % (``eval emission``).
+    pixel_scale : float
+        Camera pixels per pixel of the 320x240 frames every setting in px was measured on
+        (:data:`TUNED_WIDTH_PX`): the margins above, the spatial fill's scale and the
+        curtains' placement grow by it, so that on a 640x480 camera of the same field of
+        view (2) they keep covering the same part of the plume. The appliance sets it from
+        the camera's width (``appliance.runtime.emission_setup``).
     """
 
     gas: GasProperties = METHANE
@@ -77,6 +91,11 @@ class EmissionSettings:
     faint_gas_px: int = 15
     faint_floor_ppm_m: float = 10.0
     background_margin_px: int = 30
+    pixel_scale: float = 1.0
+
+    def px(self, value: float) -> float:
+        """A distance in px of the 320x240 frames, in this camera's px."""
+        return value * self.pixel_scale
 
 
 @dataclass(frozen=True)
@@ -143,7 +162,8 @@ class EmissionEstimator:
                              f"{settings.background_min_free!r}")
         min_free = max(1, math.ceil(settings.background_min_free * settings.background_frames))
         self.background = BackgroundModel(capacity=settings.background_frames,
-                                          min_samples=min_free, refresh=5)
+                                          min_samples=min_free, refresh=5,
+                                          fill_sigma_px=settings.px(FILL_SIGMA_PX))
 
     def column_kg_m2(self, counts: np.ndarray, gas_mask: np.ndarray,
                      gas_temperature_k: float) -> np.ndarray:
@@ -155,7 +175,7 @@ class EmissionEstimator:
         radiance = apply_characteristic_curve(np.asarray(counts), self.curve)
         # The segmentation misses faint plume edges: keep a margin around it out of the
         # background too (filled spatially from farther away when needed).
-        margin = self.settings.background_margin_px
+        margin = round(self.settings.px(self.settings.background_margin_px))
         keep_out = (grow_mask(gas_mask, margin)
                     if margin > 0 and np.any(gas_mask) else gas_mask)
         self.background.update(radiance, keep_out)
@@ -175,7 +195,8 @@ class EmissionEstimator:
         floor = float(ppm_m_to_kg_m2(self.settings.faint_floor_ppm_m,
                                      molar_mass_kg_mol=self.settings.gas.molar_mass_kg_mol,
                                      temperature_k=288.15))
-        return faint_gas(sigma_kg_m2, gas_mask, self.settings.faint_gas_px, floor)
+        return faint_gas(sigma_kg_m2, gas_mask, round(self.settings.px(self.settings.faint_gas_px)),
+                         floor)
 
     def rates(self, sigma_kg_m2: np.ndarray, *, flow: np.ndarray, velocity: np.ndarray,
               depth: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
@@ -186,7 +207,12 @@ class EmissionEstimator:
         pp, s = self.principal_point, self.camera_constant
         faint = self.faint_mask(sigma_kg_m2, gas_mask)
         # The curtains cut the whole plume, faint edges included.
-        placement = place_curtains(gas_mask if faint is None else gas_mask | faint, flow)
+        # the placement's defaults in px are those of 320x240 frames (an area: twice)
+        es = self.settings
+        placement = place_curtains(gas_mask if faint is None else gas_mask | faint, flow,
+                                   exclusion_px=es.px(EXCLUSION_PX),
+                                   margin_px=es.px(MARGIN_PX),
+                                   min_pixels=round(es.px(es.px(MIN_PIXELS))))
         z_typed = self.settings.typed_distance_m
         single_v = (single_camera_velocity(flow, z_typed, s, dt_s) if z_typed else None)
         z_single = np.full(gas_mask.shape, z_typed or 0.0)

@@ -22,6 +22,11 @@ import numpy as np
 
 from processing.emission.curtains import Curtain
 
+#: Defaults of :func:`place_curtains` in px of 320x240 frames (measured there).
+EXCLUSION_PX = 12.0
+MIN_PIXELS = 30
+MARGIN_PX = 4.0
+
 
 @dataclass(frozen=True)
 class Placement:
@@ -47,8 +52,8 @@ class Placement:
 
 
 def place_curtains(gas_mask: np.ndarray, flow: np.ndarray, *, n_curtains: int = 5,
-                   exclusion_px: float = 12.0, exclusion_fraction: float = 0.2,
-                   min_pixels: int = 30, margin_px: float = 4.0) -> Placement:
+                   exclusion_px: float = EXCLUSION_PX, exclusion_fraction: float = 0.2,
+                   min_pixels: int = MIN_PIXELS, margin_px: float = MARGIN_PX) -> Placement:
     """Curtains across the plume, downstream of its source.
 
     Parameters
