@@ -149,3 +149,41 @@ def test_a_binning_that_does_not_divide_the_cameras_is_a_config_error() -> None:
         ("simulation.width_px", 640), ("simulation.height_px", 480),
         ("processing.parameters", {"binning": 4})]))
     assert ok.processing.parameters == {"binning": 4}
+
+
+def test_the_emission_rate_of_a_binned_pair_is_that_of_the_binned_camera() -> None:
+    """The pair of the test above, binned by 2: its emission rate per triple is the 320x240
+    pair's, to the bit (the estimator works on the blocks the chain measured)."""
+    from appliance.runtime.emission_setup import EmissionSetup, emission_rate
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.emission.estimator import EmissionSettings
+
+    small = blob_frames(n_frames=8)
+    geo_small = geometry()
+    s, (x0, y0) = geo_small.camera_constant, geo_small.principal_point
+    geo_big = dataclasses.replace(geo_small, camera_constant=2 * s,
+                                  principal_point=(2 * x0 + 0.5, 2 * y0 + 0.5),
+                                  image_size=(640, 480))
+    setup = EmissionSetup(EmissionSettings(background_frames=4), gas_temperature_k=285.0,
+                          curve_left=CharacteristicCurve(offset=2000.0, gain=4e5))
+    p_small = ChainParameters(d0=5.0, diff_scale=300.0)
+    p_big = dataclasses.replace(p_small, binning=2, d0=10.0, sgm_num_disparities=128,
+                                gate_tolerance_px=3.0, max_motion_px=16, region_margin_px=48,
+                                max_jitter_px=3.0)
+    est_small, est_big = setup.estimator(geo_small), setup.estimator(geo_big, 2)
+    assert est_small is not None and est_big is not None
+    assert est_big.settings.pixel_scale == est_small.settings.pixel_scale == 1.0
+    st_small, st_big = ChainState(), ChainState()
+    rates = []
+    for k in range(6):
+        t = tuple(float(x) for x in small.times_s[k:k + 3])
+        left, right = small.left[k:k + 3], small.right[k:k + 3]
+        big_l = np.repeat(np.repeat(left, 2, axis=1), 2, axis=2)
+        big_r = np.repeat(np.repeat(right, 2, axis=1), 2, axis=2)
+        r_small = compute_scene_flow(list(left), list(right), t, geo_small, p_small, st_small)
+        r_big = compute_scene_flow(list(big_l), list(big_r), t, geo_big, p_big, st_big)
+        a = emission_rate(est_small, left[1], r_small, 285.0)
+        b = emission_rate(est_big, big_l[1], r_big, 285.0)
+        assert a == b
+        rates.append(a.rate_g_s)
+    assert any(r is not None and r > 0 for r in rates), rates

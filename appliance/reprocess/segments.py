@@ -128,7 +128,7 @@ def run_segments(
     pairs = PairStream(rec)
     window: collections.deque[tuple[int, Any]] = collections.deque(maxlen=3)
     state = ChainState()
-    estimator = None if emission is None else emission.estimator(geometry)
+    estimator = None if emission is None else emission.estimator(geometry, params.binning)
     pacer = _Pacer() if pace else None
     t_start = time.monotonic()
     for index, pair in _until(pairs, owner.last_needed):
@@ -140,7 +140,7 @@ def run_segments(
             continue
         if owner.starts_segment(k):
             state = ChainState()  # cold start at every segment border (module docstring)
-            estimator = None if emission is None else emission.estimator(geometry)
+            estimator = None if emission is None else emission.estimator(geometry, params.binning)
             publisher.restart_rate_window()
         if pacer is not None:
             pacer.wait(pair.time_ns)

@@ -146,7 +146,7 @@ class _Worker:
         self.torn = 0
         self.undelivered = 0  # results the daemon did not take within a second (skipped)
         self.estimator = (None if emission is None or geometry is None
-                          else emission.estimator(geometry))
+                          else emission.estimator(geometry, params.binning))
         self.single = SingleCameraWorker(params)
         self.own = -1  # triples this worker processed (the emission rate on every n-th)
 

@@ -33,6 +33,7 @@ from processing.emission.placement import (
     place_curtains,
 )
 from processing.emission.rate import FrameRate, out_of_plane_deg, single_camera_velocity
+from processing.preprocess.binning import bin_image
 
 #: Gas temperature when neither the configuration nor an anemometer gives one (15 degC).
 DEFAULT_GAS_TEMPERATURE_K = 288.15
@@ -148,11 +149,17 @@ class EmissionEstimator:
         s, px.
     curve : CharacteristicCurve or None
         The left camera's characteristic curve (None: counts are radiance already).
+    binning : int
+        The chain works on k x k blocks (``ChainParameters.binning``): the radiance of a
+        raw frame is binned likewise, and every field given to :meth:`rates` and the
+        principal point and camera constant above are those of the blocks.
     """
 
     def __init__(self, settings: EmissionSettings, principal_point: tuple[float, float],
-                 camera_constant: float, curve: CharacteristicCurve | None) -> None:
+                 camera_constant: float, curve: CharacteristicCurve | None,
+                 binning: int = 1) -> None:
         self.settings = settings
+        self.binning = binning
         self.principal_point = (float(principal_point[0]), float(principal_point[1]))
         self.camera_constant = float(camera_constant)
         self.curve = curve
@@ -172,7 +179,9 @@ class EmissionEstimator:
         ``gas_mask`` (the chain's segmentation of this frame) keeps gas out of the
         background; ``gas_temperature_k`` is the gas's (ambient air's) temperature, K.
         """
-        radiance = apply_characteristic_curve(np.asarray(counts), self.curve)
+        # the curve on each pixel's counts, then the blocks' means: radiance is what adds up
+        radiance = bin_image(apply_characteristic_curve(np.asarray(counts), self.curve),
+                             self.binning)
         # The segmentation misses faint plume edges: keep a margin around it out of the
         # background too (filled spatially from farther away when needed).
         margin = round(self.settings.px(self.settings.background_margin_px))
