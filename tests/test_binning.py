@@ -187,3 +187,33 @@ def test_the_emission_rate_of_a_binned_pair_is_that_of_the_binned_camera() -> No
         assert a == b
         rates.append(a.rate_g_s)
     assert any(r is not None and r > 0 for r in rates), rates
+
+
+def test_a_single_cameras_window_at_a_binned_site_has_its_own_full_size_rate() -> None:
+    """While one camera is lost the worker runs the single-camera chain on every pixel; its
+    emission rate must not go through the estimator of the binned stereo chain."""
+    from types import SimpleNamespace
+
+    from appliance.runtime.emission_setup import EmissionSetup
+    from appliance.runtime.worker_result import WorkerResult
+    from appliance.runtime.workers import _Worker
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.emission.estimator import EmissionSettings
+
+    small = blob_frames(n_frames=4)
+    geo_small = geometry()
+    geo = dataclasses.replace(geo_small, camera_constant=2 * geo_small.camera_constant,
+                              image_size=(640, 480))
+    setup = EmissionSetup(EmissionSettings(typed_distance_m=5.0, background_frames=4),
+                          gas_temperature_k=285.0,
+                          curve_left=CharacteristicCurve(offset=2000.0, gain=4e5))
+    worker = _Worker(0, SimpleNamespace(capacity=16), 1, geo, ChainParameters(binning=2),
+                     setup, None, None, None)
+    assert worker.estimator is not None and worker.estimator.binning == 2
+    assert worker.single_estimator is not None and worker.single_estimator.binning == 1
+    frames = np.repeat(np.repeat(small.left[:3], 2, axis=1), 2, axis=2)
+    times = tuple(int(t * 1e9) for t in small.times_s[:3])
+    base = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=times, t_wall_ns=0,
+                        skipped=0, done_mono_ns=0)
+    worker._single("left", frames, base, False, True)
+    assert base.rate is not None and "failed" not in base.rate.reason, base.rate

@@ -147,6 +147,9 @@ class _Worker:
         self.undelivered = 0  # results the daemon did not take within a second (skipped)
         self.estimator = (None if emission is None or geometry is None
                           else emission.estimator(geometry, params.binning))
+        # a single camera's window runs on every pixel (no binning): its own estimator
+        self.single_estimator = (self.estimator if params.binning == 1 or self.estimator is None
+                                 else emission.estimator(geometry))  # type: ignore[union-attr]
         self.single = SingleCameraWorker(params)
         self.own = -1  # triples this worker processed (the emission rate on every n-th)
 
@@ -206,7 +209,7 @@ class _Worker:
         pack_single(tr, base, camera, fields=full)
         if self.emission is not None:
             base.rate = self.single.rate(
-                self.estimator if camera == "left" else None, self.emission, frames[1], tr,
+                self.single_estimator if camera == "left" else None, self.emission, frames[1], tr,
                 base.dt_s, self.sonic_k, rate_due)
 
     def _stereo(self, left: np.ndarray, right: np.ndarray, base: WorkerResult, full: bool,
