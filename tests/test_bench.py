@@ -33,6 +33,7 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert res["chain_ms"] >= 0.99 * sum(res["stages_ms"].values())
     assert set(res["pairs_per_s"]) == {"1", "2"}
     assert all(_positive_finite(v) for v in res["pairs_per_s"].values())
+    assert res["throughput_frames"] == bm.THROUGHPUT_MIN_FRAMES  # --frames 6 is too short
     assert _positive_finite(res["farneback_ms"]) and _positive_finite(res["chain_cpu_ms"])
     assert set(res["ratio_to_farneback"]) == {*bm.STAGES, "chain"}
     assert set(res["cold"]["stages_ms"]) == set(bm.STAGES)
@@ -59,8 +60,8 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert "disparity" in text and "pairs/s" in text and "load average" in text
     assert "roofline floor" in text and "cold" in text
     assert "no region" in text and "active region:" in text
-    # the generated input was cached under --cache-dir
-    assert len(list((tmp_path / "cache").glob("blob-*.npz"))) == 1
+    # the generated inputs (6 frames; 62 for pairs/s) were cached under --cache-dir
+    assert len(list((tmp_path / "cache").glob("blob-*.npz"))) == 2
 
 
 def test_cache_roundtrip_and_corrupt_file(tmp_path: Path) -> None:
@@ -139,3 +140,36 @@ def test_warm_times_report_the_region() -> None:
     assert no_region.warm_full is None
     with pytest.raises(ValueError, match="warm_full"):
         no_region.times("warm_full")
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_the_pairs_per_s_input_starts_cold_as_often_as_the_daemon(stride: int) -> None:
+    """On THROUGHPUT_MIN_FRAMES cycled frames a worker taking every ``stride``-th triple
+    starts cold once in ``cold_every`` of its own triples, as the daemon's workers do; on
+    16 frames two workers started cold twice as often as one."""
+    import numpy as np
+
+    from processing.chain import ChainParameters, ChainState
+
+    cold_every = ChainParameters().cold_every
+
+    def cold_share(n_frames: int) -> float:
+        stack = np.zeros((n_frames, 240, 320), np.uint16)  # only the times matter here
+        frames = bm.BenchFrames(left=stack, right=stack,
+                                times_s=np.arange(n_frames) / bm.FRAME_RATE_HZ, source="blob")
+        triples = bm.iter_triples(frames)
+        state = ChainState(stride=stride)
+        field = np.zeros((1, 1), np.float32)
+        cold = total = 0
+        for _ in range(20 * n_frames):
+            _, _, times = next(triples)
+            for _ in range(stride - 1):
+                next(triples)
+            cold += state.warm_start(times, True, cold_every) is None
+            total += 1
+            state.previous_flow, state.previous_disparity = np.zeros((1, 1, 2)), field
+            state.previous_change, state.previous_times = field, times
+        return cold / total
+
+    assert cold_share(bm.THROUGHPUT_MIN_FRAMES) == pytest.approx(1 / cold_every, rel=0.05)
+    assert cold_share(16) == pytest.approx(stride / 14, rel=0.05)

@@ -19,7 +19,12 @@ Measures, in one run on one input (:mod:`appliance.evaluation.bench_input`):
   one numba thread and taking every N-th triple as the daemon's workers do (sharing the
   registration shifts through shared memory as they do), back to back for a fixed wall
   time after its own warm-up: completed triples / wall time. In streaming every
-  new stereo pair completes one triple, so triples/s = pairs/s.
+  new stereo pair completes one triple, so triples/s = pairs/s. They run on a sequence of
+  at least :data:`THROUGHPUT_MIN_FRAMES` frames: the wrap of a cycled sequence is a cold
+  start, and on a short one two workers, each taking half of a lap's triples, started cold
+  twice as often as one (every 7th triple of 16 frames against every 14th) while the
+  daemon's workers start cold every ``cold_every``-th triple of their own whatever their
+  number.
 """
 
 from __future__ import annotations
@@ -52,9 +57,15 @@ from processing.chain import ChainParameters, ChainState, compute_scene_flow
 from processing.chain.state import STRIDES
 from processing.flow.opencv import farneback_flow
 
-__all__ = ["FRAME_RATE_HZ", "SIZES", "SOURCES", "STAGES", "BenchFrames", "StageTimes", "Throughput",
+__all__ = ["FRAME_RATE_HZ", "SIZES", "SOURCES", "STAGES", "THROUGHPUT_MIN_FRAMES", "BenchFrames",
+           "StageTimes", "Throughput",
            "blob_frames", "field_frames", "geometry", "iter_triples", "load_average",
            "load_frames", "measure_stages", "measure_throughput", "single_thread"]
+
+#: Frames of the pairs/s input at least: a lap of one worker's or of each of two workers'
+#: own triples is then ``cold_every`` long, so the wrap's cold start comes as often as the
+#: daemon's ``cold_every`` one (1 in 30 own triples) for either number of workers.
+THROUGHPUT_MIN_FRAMES = 2 * ChainParameters().cold_every + 2
 
 #: Order in which stages are reported (the chain's ``timings_ms`` keys, without "total";
 #: "depth_gate" is 0 when the gate is off).
