@@ -95,27 +95,38 @@ def test_frames_whose_size_binning_does_not_divide_are_refused() -> None:
                            ChainParameters(binning=4))
 
 
+def _twice_the_pixels(geo: StereoGeometry) -> StereoGeometry:
+    """The camera of ``geo`` (320x240) with each pixel split into 2x2 (640x480)."""
+    s, (x0, y0) = geo.camera_constant, geo.principal_point
+    return dataclasses.replace(geo, camera_constant=2 * s,
+                               principal_point=(2 * x0 + 0.5, 2 * y0 + 0.5),
+                               image_size=(640, 480))
+
+
+def _grow_stack(stack: np.ndarray) -> np.ndarray:
+    """(N, H, W) frames with each pixel repeated on a 2x2 block."""
+    return np.repeat(np.repeat(stack, 2, axis=1), 2, axis=2)
+
+
+def _parameters() -> tuple[ChainParameters, ChainParameters]:
+    """The 320x240 chain's parameters and those of its 640x480 camera binned by 2 (settings
+    in camera px doubled). The first normalisation scale is taken from the raw frames'
+    sampled differences, a different sample at the two sizes: fixed here, so that
+    everything else is compared."""
+    small = ChainParameters(d0=5.0, diff_scale=300.0)
+    return small, dataclasses.replace(small, binning=2, d0=10.0, sgm_num_disparities=128,
+                                      gate_tolerance_px=3.0, max_motion_px=16,
+                                      region_margin_px=48, max_jitter_px=3.0)
+
+
 def test_the_binned_chain_is_the_chain_on_the_binned_camera_at_camera_size() -> None:
     """A 640x480 pair whose 2x2 blocks are the pixels of a 320x240 pair, binned by 2, gives
     exactly the 320x240 chain's fields grown to 640x480 (warm triples included)."""
     small = blob_frames(n_frames=6)
     geo_small = geometry()
-    s, (x0, y0) = geo_small.camera_constant, geo_small.principal_point
-    geo_big = dataclasses.replace(geo_small, camera_constant=2 * s,
-                                  principal_point=(2 * x0 + 0.5, 2 * y0 + 0.5),
-                                  image_size=(640, 480))
-
-    def grow(stack: np.ndarray) -> np.ndarray:
-        return np.repeat(np.repeat(stack, 2, axis=1), 2, axis=2)
-
-    big_left, big_right = grow(small.left), grow(small.right)
-    # the first normalisation scale is taken from the raw frames' sampled differences, a
-    # different sample at the two sizes: fixed here, so that everything else is compared
-    common = {"d0": 5.0, "diff_scale": 300.0}
-    p_small = ChainParameters(**common)
-    p_big = ChainParameters(binning=2, sgm_num_disparities=128, gate_tolerance_px=3.0,
-                            max_motion_px=16, region_margin_px=48, max_jitter_px=3.0,
-                            **{**common, "d0": 10.0})
+    geo_big = _twice_the_pixels(geo_small)
+    big_left, big_right = _grow_stack(small.left), _grow_stack(small.right)
+    p_small, p_big = _parameters()
     st_small, st_big = ChainState(), ChainState()
     for k in range(4):
         t = tuple(float(x) for x in small.times_s[k:k + 3])
@@ -160,16 +171,10 @@ def test_the_emission_rate_of_a_binned_pair_is_that_of_the_binned_camera() -> No
 
     small = blob_frames(n_frames=8)
     geo_small = geometry()
-    s, (x0, y0) = geo_small.camera_constant, geo_small.principal_point
-    geo_big = dataclasses.replace(geo_small, camera_constant=2 * s,
-                                  principal_point=(2 * x0 + 0.5, 2 * y0 + 0.5),
-                                  image_size=(640, 480))
+    geo_big = _twice_the_pixels(geo_small)
     setup = EmissionSetup(EmissionSettings(background_frames=4), gas_temperature_k=285.0,
                           curve_left=CharacteristicCurve(offset=2000.0, gain=4e5))
-    p_small = ChainParameters(d0=5.0, diff_scale=300.0)
-    p_big = dataclasses.replace(p_small, binning=2, d0=10.0, sgm_num_disparities=128,
-                                gate_tolerance_px=3.0, max_motion_px=16, region_margin_px=48,
-                                max_jitter_px=3.0)
+    p_small, p_big = _parameters()
     est_small, est_big = setup.estimator(geo_small), setup.estimator(geo_big, 2)
     assert est_small is not None and est_big is not None
     assert est_big.settings.pixel_scale == est_small.settings.pixel_scale == 1.0
@@ -178,8 +183,7 @@ def test_the_emission_rate_of_a_binned_pair_is_that_of_the_binned_camera() -> No
     for k in range(6):
         t = tuple(float(x) for x in small.times_s[k:k + 3])
         left, right = small.left[k:k + 3], small.right[k:k + 3]
-        big_l = np.repeat(np.repeat(left, 2, axis=1), 2, axis=2)
-        big_r = np.repeat(np.repeat(right, 2, axis=1), 2, axis=2)
+        big_l, big_r = _grow_stack(left), _grow_stack(right)
         r_small = compute_scene_flow(list(left), list(right), t, geo_small, p_small, st_small)
         r_big = compute_scene_flow(list(big_l), list(big_r), t, geo_big, p_big, st_big)
         a = emission_rate(est_small, left[1], r_small, 285.0)
@@ -201,9 +205,7 @@ def test_a_single_cameras_window_at_a_binned_site_has_its_own_full_size_rate() -
     from processing.emission.estimator import EmissionSettings
 
     small = blob_frames(n_frames=4)
-    geo_small = geometry()
-    geo = dataclasses.replace(geo_small, camera_constant=2 * geo_small.camera_constant,
-                              image_size=(640, 480))
+    geo = _twice_the_pixels(geometry())
     setup = EmissionSetup(EmissionSettings(typed_distance_m=5.0, background_frames=4),
                           gas_temperature_k=285.0,
                           curve_left=CharacteristicCurve(offset=2000.0, gain=4e5))
@@ -211,7 +213,7 @@ def test_a_single_cameras_window_at_a_binned_site_has_its_own_full_size_rate() -
                      setup, None, None, None)
     assert worker.estimator is not None and worker.estimator.binning == 2
     assert worker.single_estimator is not None and worker.single_estimator.binning == 1
-    frames = np.repeat(np.repeat(small.left[:3], 2, axis=1), 2, axis=2)
+    frames = _grow_stack(small.left[:3])
     times = tuple(int(t * 1e9) for t in small.times_s[:3])
     base = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=times, t_wall_ns=0,
                         skipped=0, done_mono_ns=0)
