@@ -18,6 +18,20 @@ def test_says_once_after_the_window_from_the_first_result() -> None:
     assert check.observe(200.0, 300, 150) is None  # said once
 
 
+def test_the_advice_names_binning_for_a_wide_camera_and_the_speed_settings() -> None:
+    from appliance.runtime.keepup import keep_up_advice
+
+    wide = keep_up_advice((640, 480), 1)
+    assert "processing.parameters.binning: 2" in wide and "640x480" in wide
+    assert "binning" not in keep_up_advice((640, 480), 2)
+    narrow = keep_up_advice((320, 240), 1)
+    assert "binning" not in narrow and "docs/performance.md" in narrow
+    check = KeepUpCheck(window_s=1.0, advice=wide)
+    check.observe(0.0, 1, 0)
+    verdict = check.observe(2.0, 10, 30)
+    assert verdict is not None and not verdict[0] and verdict[1].endswith(wide)
+
+
 def test_keeping_up_is_reported_too() -> None:
     check = KeepUpCheck(window_s=5.0)
     check.observe(0.0, 1, 0)

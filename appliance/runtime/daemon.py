@@ -52,7 +52,7 @@ from appliance.runtime.health import (
     log_sink,
     mcap_sink,
 )
-from appliance.runtime.keepup import KeepUpCheck, StageTimes, peak_rss_mb
+from appliance.runtime.keepup import KeepUpCheck, StageTimes, keep_up_advice, peak_rss_mb
 from appliance.runtime.metrics import metrics_text
 from appliance.runtime.monitor import monitor_from_config
 from appliance.runtime.page_service import start_page, stop_page
@@ -257,6 +257,7 @@ class Appliance:
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
         self.params = cfg.processing.chain_parameters(defaults)
+        self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning)
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
 

@@ -35,6 +35,9 @@ class KeepUpCheck:
 
     window_s: float = 20.0
     threshold: float = 0.9
+    #: What to change when processing does not keep up (:func:`keep_up_advice`).
+    advice: str = ("lower the frame rate, add workers/cores, or reduce the solvers' "
+                   "iterations (processing.parameters)")
     _start: tuple[float, int, int] | None = None
     _done: bool = False
 
@@ -73,8 +76,21 @@ class KeepUpCheck:
                           f"({rate:.1f}/s) over the first {elapsed:.0f} s")
         return False, (f"processing cannot keep up: only {100 * share:.0f} % of triples "
                        f"processed ({rate:.1f}/s, {s / elapsed:.1f}/s skipped) over the first "
-                       f"{elapsed:.0f} s; lower the frame rate, add workers/cores, or reduce "
-                       "the solvers' iterations (processing.parameters)")
+                       f"{elapsed:.0f} s; {self.advice}")
+
+
+def keep_up_advice(image_size: tuple[int, int], binning: int) -> str:
+    """What a site that does not keep up can change, for cameras of ``image_size`` (W, H)
+    and the chain's ``binning``: a camera wider than 320 px first of all its binning (the
+    chain then costs what it costs at 320x240), then the documented speed settings."""
+    w, h = image_size
+    hints = ["lower the frame rate", "add workers/cores"]
+    if w > 320 and binning == 1 and w % 2 == 0 and h % 2 == 0:
+        hints.append(f"bin the {w}x{h} cameras' pixels (processing.parameters.binning: 2, a "
+                     "quarter of the chain's work)")
+    hints.append("or trade accuracy for speed (processing.parameters: the active region and "
+                 "fewer warm pyramid levels; docs/performance.md, one core)")
+    return ", ".join(hints)
 
 
 @dataclass
