@@ -10,10 +10,10 @@ import pytest
 from appliance.evaluation.bench_input import blob_frames, geometry
 from processing.chain import ChainParameters, ChainState, compute_scene_flow
 from processing.chain.binning import (
-    _grow,
     bin_image,
     binned_geometry,
     binned_parameters,
+    grow,
     upsampled_result,
 )
 from processing.stereo_geometry import StereoGeometry
@@ -42,7 +42,7 @@ def test_a_binned_image_is_the_mean_of_each_block() -> None:
 ])
 @pytest.mark.parametrize("k", [2, 3, 4])
 def test_a_grown_field_puts_each_value_on_its_whole_block(field: np.ndarray, k: int) -> None:
-    out = _grow(field, k)
+    out = grow(field, k)
     expected = np.repeat(np.repeat(field, k, axis=0), k, axis=1)
     assert out.dtype == field.dtype and out.shape == expected.shape
     assert np.array_equal(out, expected)
@@ -145,7 +145,7 @@ def test_the_binned_chain_is_the_chain_on_the_binned_camera_at_camera_size() -> 
         assert r_big.summary == want.summary
         assert r_big.summary.mean_velocity == r_small.summary.mean_velocity
         assert r_big.summary.gas_pixel_count == 4 * r_small.summary.gas_pixel_count
-        assert np.array_equal(r_big.flow, 2 * _grow(r_small.flow, 2))
+        assert np.array_equal(r_big.flow, 2 * grow(r_small.flow, 2))
 
 
 def test_a_binning_that_does_not_divide_the_cameras_is_a_config_error() -> None:
@@ -185,17 +185,58 @@ def test_the_emission_rate_of_a_binned_pair_is_that_of_the_binned_camera() -> No
         left, right = small.left[k:k + 3], small.right[k:k + 3]
         big_l, big_r = _grow_stack(left), _grow_stack(right)
         r_small = compute_scene_flow(list(left), list(right), t, geo_small, p_small, st_small)
-        r_big = compute_scene_flow(list(big_l), list(big_r), t, geo_big, p_big, st_big)
+        r_big = compute_scene_flow(list(big_l), list(big_r), t, geo_big, p_big, st_big,
+                                   at_camera_size=False)
         a = emission_rate(est_small, left[1], r_small, 285.0)
         b = emission_rate(est_big, big_l[1], r_big, 285.0)
         assert a == b
         rates.append(a.rate_g_s)
     assert any(r is not None and r > 0 for r in rates), rates
+    with pytest.raises(ValueError, match=r"binned by 2 takes its \(240, 320\) block fields"):
+        emission_rate(est_big, big_l[1], upsampled_result(r_big, 2), 285.0)
 
 
-def test_a_single_cameras_window_at_a_binned_site_has_its_own_full_size_rate() -> None:
-    """While one camera is lost the worker runs the single-camera chain on every pixel; its
-    emission rate must not go through the estimator of the binned stereo chain."""
+@pytest.mark.parametrize("fields", [False, True])
+def test_a_worker_sends_a_binned_result_as_the_grown_result(fields: bool) -> None:
+    """What a worker packs from the chain's block result is what it packed from the result
+    grown to camera size: the gas mask, the flow at its pixels, the arrows, the summary in
+    camera pixels (and the fields, when the daemon asks for them)."""
+    from appliance.runtime.worker_result import WorkerResult, pack_result
+
+    small = blob_frames(n_frames=4)
+    geo_big = _twice_the_pixels(geometry())
+    _, p_big = _parameters()
+    state = ChainState()
+    big_l, big_r = _grow_stack(small.left), _grow_stack(small.right)
+    for k in range(2):
+        t = tuple(float(x) for x in small.times_s[k:k + 3])
+        blocks = compute_scene_flow(list(big_l[k:k + 3]), list(big_r[k:k + 3]), t, geo_big,
+                                    p_big, state, at_camera_size=False)
+        assert blocks.gas_mask.shape == (240, 320) and blocks.gas_mask.any()
+
+        def base() -> WorkerResult:
+            return WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=(0, 1, 2),
+                                t_wall_ns=0, skipped=0, done_mono_ns=0)
+
+        got = pack_result(blocks, base(), big_l[k], fields=fields, binning=2)
+        want = pack_result(upsampled_result(blocks, 2), base(), big_l[k], fields=fields)
+        assert got.gas_mask.shape == (480, 640)
+        assert got.summary == want.summary
+        assert got.summary["gas_pixel_count"] == 4 * int(blocks.gas_mask.sum())
+        for name in ("gas_mask", "gas_flow", "points3d", "velocity3d", "pixels", "flow",
+                     "disparity", "disparity_change", "velocity", "valid", "diff_left",
+                     "diff_right", "raw_left"):
+            a, b = getattr(got, name), getattr(want, name)
+            assert (a is None) == (b is None) == (name in ("flow", "disparity",
+                    "disparity_change", "velocity", "valid", "diff_left", "diff_right",
+                    "raw_left") and not fields), name
+            assert a is None or (a.dtype == b.dtype and np.array_equal(a, b)), name
+
+
+def test_a_binned_worker_sends_camera_size_results_with_block_rates() -> None:
+    """A worker of a binned site sends its stereo result at the cameras' size with the rate
+    of the blocks; while one camera is lost it runs the single-camera chain on every pixel,
+    whose emission rate must not go through the estimator of the binned stereo chain."""
     from types import SimpleNamespace
 
     from appliance.runtime.emission_setup import EmissionSetup
@@ -215,7 +256,16 @@ def test_a_single_cameras_window_at_a_binned_site_has_its_own_full_size_rate() -
     assert worker.single_estimator is not None and worker.single_estimator.binning == 1
     frames = _grow_stack(small.left[:3])
     times = tuple(int(t * 1e9) for t in small.times_s[:3])
-    base = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=times, t_wall_ns=0,
-                        skipped=0, done_mono_ns=0)
-    worker._single("left", frames, base, False, True)
-    assert base.rate is not None and "failed" not in base.rate.reason, base.rate
+
+    def base() -> WorkerResult:
+        return WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=times, t_wall_ns=0,
+                            skipped=0, done_mono_ns=0)
+
+    stereo = base()
+    worker._stereo(frames, _grow_stack(small.right[:3]), stereo, False, True)
+    assert stereo.error is None and stereo.gas_mask is not None
+    assert stereo.gas_mask.shape == (480, 640) and stereo.gas_mask.any()
+    assert stereo.rate is not None and "failed" not in stereo.rate.reason, stereo.rate
+    single = base()
+    worker._single("left", frames, single, False, True)
+    assert single.rate is not None and "failed" not in single.rate.reason, single.rate

@@ -189,7 +189,7 @@ def _process_triple(rec: Recording, k: int, trio: list[Any], geometry: StereoGeo
     right = np.stack([p.right.image for p in trio]).astype(np.uint16, copy=False)
     try:
         res = compute_scene_flow_on(left, right, t_mono, geometry, params, state)
-        pack_result(res, base)
+        pack_result(res, base, binning=params.binning)
         if estimator is not None and emission is not None:
             base.rate = emission_rate(estimator, left[1], res, emission.temperature_k())
         elif emission is not None:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from processing.calibration.radiometric import CharacteristicCurve
-from processing.chain.binning import binned_geometry, block_field
+from processing.chain.binning import binned_geometry
 from processing.chain.driver import SceneFlowResult, StereoGeometry
 from processing.emission.estimator import (
     DEFAULT_GAS_TEMPERATURE_K,
@@ -100,17 +100,22 @@ NO_RADIOMETRY = FrameRate(None, (), "no radiometric calibration (counts are not 
 def emission_rate(estimator: EmissionEstimator, left_t1: np.ndarray, res: SceneFlowResult,
                   gas_temperature_k: float) -> FrameRate:
     """The stereo emission rate of one triple from the raw left frame at t1; a failure is a
-    rate with its reason, never a lost result."""
+    rate with its reason, never a lost result.
+
+    ``res`` is the chain's result as it measured it: with the estimator's ``binning`` k > 1,
+    on k x k blocks (``compute_scene_flow(..., at_camera_size=False)``), which is what the
+    estimator works on.
+    """
     if "implausible_speed" in res.summary.flags:
         return FrameRate(None, (), "implausible gas speed (not a measurement)")
-    k = estimator.binning
-    flow = res.flow if k == 1 else block_field(res.flow, k) / np.float32(k)  # px of blocks
+    expected = tuple(n // estimator.binning for n in left_t1.shape)
+    if res.gas_mask.shape != expected:
+        raise ValueError(f"the emission rate of a chain binned by {estimator.binning} takes "
+                         f"its {expected} block fields, got {res.gas_mask.shape}")
     try:
         return estimator.frame_rate(
-            left_t1, flow=flow,
-            velocity=block_field(res.velocity, k),
-            depth=block_field(res.position[..., 2], k), valid=block_field(res.valid, k),
-            gas_mask=block_field(res.gas_mask, k), dt_s=res.dt_s,
+            left_t1, flow=res.flow, velocity=res.velocity, depth=res.position[..., 2],
+            valid=res.valid, gas_mask=res.gas_mask, dt_s=res.dt_s,
             gas_temperature_k=gas_temperature_k)
     except (ValueError, FloatingPointError) as exc:
         return FrameRate(None, (), f"emission rate failed: {exc}")

@@ -218,7 +218,7 @@ class _Worker:
             raise ValueError("a stereo pair at a site without stereo geometry")
         res = compute_scene_flow_on(left, right, base.t_mono_ns, self.geometry, self.params,
                                     self.state)
-        pack_result(res, base, raw_left=left[0], fields=full)
+        pack_result(res, base, raw_left=left[0], fields=full, binning=self.params.binning)
         if self.estimator is not None and self.emission is not None and rate_due:
             base.rate = emission_rate(self.estimator, left[1], res,
                                       self.emission.temperature_k(self.sonic_k))
@@ -237,6 +237,9 @@ class _Worker:
 def compute_scene_flow_on(left: np.ndarray, right: np.ndarray, t_mono_ns: tuple[int, ...],
                           geometry: StereoGeometry, params: ChainParameters,
                           state: ChainState) -> SceneFlowResult:
-    """Run the chain on (3, H, W) left/right stacks with host monotonic ns times."""
+    """Run the chain on (3, H, W) left/right stacks with host monotonic ns times; with
+    ``params.binning`` > 1 the result is on the chain's blocks (:func:`pack_result` and
+    :func:`emission_rate` take it so and grow only what they send)."""
     times = tuple(t / 1e9 for t in t_mono_ns)
-    return compute_scene_flow(list(left), list(right), times, geometry, params, state)
+    return compute_scene_flow(list(left), list(right), times, geometry, params, state,
+                              at_camera_size=False)

@@ -24,11 +24,12 @@ import numpy as np
 
 from processing.chain.parameters import ChainParameters
 from processing.chain.result import SceneFlowResult
+from processing.chain.summary import GasSummary
 from processing.preprocess.binning import bin_image, check_binning
 from processing.stereo_geometry import StereoGeometry
 
-__all__ = ["bin_image", "binned_geometry", "binned_parameters", "block_field", "check_binning",
-           "upsampled_result"]
+__all__ = ["bin_image", "binned_geometry", "binned_parameters", "block_of",
+           "check_binning", "grow", "upsampled_result", "upsampled_summary"]
 
 
 def binned_geometry(geometry: StereoGeometry, k: int) -> StereoGeometry:
@@ -71,10 +72,10 @@ def binned_parameters(params: ChainParameters) -> ChainParameters:
         binning=1)
 
 
-def _grow(field: np.ndarray, k: int) -> np.ndarray:
+def grow(field: np.ndarray, k: int) -> np.ndarray:
     """Each value of ``field`` (h, w[, c]) on its k x k block: (h k, w k[, c])."""
     if field.dtype == np.bool_:
-        return _grow(field.view(np.uint8), k).view(np.bool_)
+        return grow(field.view(np.uint8), k).view(np.bool_)
     h, w = field.shape[:2]
     # OpenCV's nearest neighbour at an integer factor takes source pixel floor(x / k):
     # the same values as np.repeat (tested), several times faster at 640x480
@@ -82,10 +83,21 @@ def _grow(field: np.ndarray, k: int) -> np.ndarray:
     return out.reshape(h * k, w * k, *field.shape[2:])
 
 
-def block_field(field: np.ndarray, k: int) -> np.ndarray:
-    """The blocks' values of a field at camera size (h k, w k[, c]) that
-    :func:`upsampled_result` grew: (h, w[, c]), contiguous."""
-    return field if k == 1 else np.ascontiguousarray(field[::k, ::k])
+def block_of(flat_index: np.ndarray, width: int, k: int) -> np.ndarray:
+    """The flat indices into a block field (h, w) of the camera pixels whose flat indices
+    into the camera-size field (h k, ``width`` = w k) are ``flat_index``: reading a block
+    field there reads :func:`grow`'s field at those pixels, without growing it."""
+    ys, xs = np.divmod(flat_index, width)
+    return (ys // k) * (width // k) + xs // k
+
+
+def upsampled_summary(summary: GasSummary, k: int) -> GasSummary:
+    """The summary of the binned chain in camera pixels: its pixel counts times k^2, its
+    means unchanged (every block counts k^2 times)."""
+    if k == 1:
+        return summary
+    return dataclasses.replace(summary, pixel_count=summary.pixel_count * k * k,
+                               gas_pixel_count=summary.gas_pixel_count * k * k)
 
 
 def _shifts(shifts: tuple[tuple[float, float], tuple[float, float]], k: int
@@ -100,20 +112,18 @@ def upsampled_result(res: SceneFlowResult, k: int) -> SceneFlowResult:
     block counts k^2 times)."""
     if k == 1:
         return res
-    s = res.summary
     region = None if res.region is None else tuple(int(b) * k for b in res.region)
     return dataclasses.replace(
         res,
-        diff_left=(_grow(res.diff_left[0], k), _grow(res.diff_left[1], k)),
-        diff_right=(_grow(res.diff_right[0], k), _grow(res.diff_right[1], k)),
-        flow=_grow(res.flow, k) * np.float32(k),
-        disparity=_grow(res.disparity, k) * np.float32(k),
-        disparity_change=_grow(res.disparity_change, k) * np.float32(k),
-        velocity=_grow(res.velocity, k), position=_grow(res.position, k),
-        valid=_grow(res.valid, k), u_sf=_grow(res.u_sf, k),
-        u_sf_valid=_grow(res.u_sf_valid, k), gas_mask=_grow(res.gas_mask, k),
-        phi=_grow(res.phi, k),
-        summary=dataclasses.replace(s, pixel_count=s.pixel_count * k * k,
-                                    gas_pixel_count=s.gas_pixel_count * k * k),
+        diff_left=(grow(res.diff_left[0], k), grow(res.diff_left[1], k)),
+        diff_right=(grow(res.diff_right[0], k), grow(res.diff_right[1], k)),
+        flow=grow(res.flow, k) * np.float32(k),
+        disparity=grow(res.disparity, k) * np.float32(k),
+        disparity_change=grow(res.disparity_change, k) * np.float32(k),
+        velocity=grow(res.velocity, k), position=grow(res.position, k),
+        valid=grow(res.valid, k), u_sf=grow(res.u_sf, k),
+        u_sf_valid=grow(res.u_sf_valid, k), gas_mask=grow(res.gas_mask, k),
+        phi=grow(res.phi, k),
+        summary=upsampled_summary(res.summary, k),
         shifts_left=_shifts(res.shifts_left, k), shifts_right=_shifts(res.shifts_right, k),
         region=region)  # type: ignore[arg-type]

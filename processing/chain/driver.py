@@ -71,7 +71,8 @@ Pair = tuple[PreprocessedTriple, PreprocessedTriple]
 def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
                        times_s: Sequence[float], geometry: StereoGeometry,
                        params: ChainParameters | None = None,
-                       state: ChainState | None = None) -> SceneFlowResult:
+                       state: ChainState | None = None, *,
+                       at_camera_size: bool = True) -> SceneFlowResult:
     """Run the whole chain on three consecutive stereo pairs.
 
     Parameters
@@ -87,6 +88,12 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     state : ChainState, optional
         Carried from the previous call of the same stream and updated in place
         (:mod:`processing.chain.state`); None: every triple on its own.
+    at_camera_size : bool
+        With ``params.binning`` k > 1: True returns the fields at the cameras' size (each
+        block's value on its k x k pixels, motions and disparities in camera px); False
+        returns them as the chain measured them, (H / k, W / k) in px of blocks, for a
+        caller that grows only what it needs
+        (:func:`processing.chain.binning.upsampled_result` makes the first from the second).
 
     Returns
     -------
@@ -149,13 +156,14 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
                   scene_change=cut or implausible, flow=flow, disparity=d, change=dd, mask=mask)
-    return upsampled_result(SceneFlowResult(
+    blocks = SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
         valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=mask, phi=phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
-        warm=warm is not None, region=None if box is None else box.bounds), k)
+        warm=warm is not None, region=None if box is None else box.bounds)
+    return upsampled_result(blocks, k) if at_camera_size else blocks
 
 
 def _summary(velocity: np.ndarray, valid: np.ndarray, mask: np.ndarray, u_sf: np.ndarray,
