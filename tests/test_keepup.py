@@ -26,6 +26,10 @@ def test_the_advice_names_binning_for_a_wide_camera_and_the_speed_settings() -> 
     assert "binning" not in keep_up_advice((640, 480), 2)
     narrow = keep_up_advice((320, 240), 1)
     assert "binning" not in narrow and "docs/performance.md" in narrow
+    assert "rendering" not in wide
+    rendering = keep_up_advice((320, 240), 1, rendering=True)
+    assert rendering.startswith("the simulated scene was rendering in a background process")
+    assert "ogiflow run --prepare" in rendering and rendering.endswith(narrow)
     check = KeepUpCheck(window_s=1.0, advice=wide)
     check.observe(0.0, 1, 0)
     verdict = check.observe(2.0, 10, 30)

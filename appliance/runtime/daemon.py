@@ -257,7 +257,8 @@ class Appliance:
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
         self.params = cfg.processing.chain_parameters(defaults)
-        self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning)
+        self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning,
+                                              rendering=self.site.background is not None)
         self.emission = emission_setup(cfg, self.site.truth)
         self._previous_handlers: dict[int, Any] = {}
 

@@ -79,12 +79,23 @@ class KeepUpCheck:
                        f"{elapsed:.0f} s; {self.advice}")
 
 
-def keep_up_advice(image_size: tuple[int, int], binning: int) -> str:
+def keep_up_advice(image_size: tuple[int, int], binning: int, *,
+                   rendering: bool = False) -> str:
     """What a site that does not keep up can change, for cameras of ``image_size`` (W, H)
     and the chain's ``binning``: a camera wider than 320 px first of all its binning (the
-    chain then costs what it costs at 320x240), then the documented speed settings."""
+    chain then costs what it costs at 320x240), then the documented speed settings.
+
+    ``rendering``: the simulated scene was still rendering in a background process at the
+    start (a first start shows its preview meanwhile). That process takes CPU from the
+    workers (measured: 89 % and 56 % processed with two and one worker against 100 % and
+    75 % with the scene cached), so it is named first: the settings are not the cause.
+    """
     w, h = image_size
     hints = ["lower the frame rate", "add workers/cores"]
+    if rendering:
+        hints.insert(0, "the simulated scene was rendering in a background process at the "
+                        "start and takes CPU from the workers (`ogiflow run --prepare` "
+                        "renders it before a start); otherwise")
     if w > 320 and binning == 1 and w % 2 == 0 and h % 2 == 0:
         hints.append(f"bin the {w}x{h} cameras' pixels (processing.parameters.binning: 2, a "
                      "quarter of the chain's work)")
