@@ -242,13 +242,38 @@ def test_sigterm_finalises_files_and_exits_0(recorded: dict, tmp_path: Path) -> 
     finally:
         proc.send_signal(signal.SIGTERM)
     t0 = time.monotonic()
-    proc.wait(timeout=30)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()  # its workers end with it: no daemon outlives the test
+        proc.wait()
+        raise
     stop_s = time.monotonic() - t0
     print(f"shutdown after SIGTERM took {stop_s:.2f} s")
     assert proc.returncode == 0
     files = list((tmp_path / "rec").glob("ogiflow-*"))
     assert files and all(f.suffix == ".mcap" for f in files)
     assert not LogReader(files[0]).truncated
+
+
+def test_a_signal_inside_the_wait_for_the_stop_event_does_not_deadlock() -> None:
+    """A signal handler runs in the main thread, possibly while it holds the stop event's
+    lock inside ``wait()``. The handler must not take that lock (it used to call
+    ``stop_event.set()``, and a SIGTERM once left the daemon hanging); the wait loop then
+    stops the run."""
+    app = Appliance(load_config(None, list(SMALL_SCENE)), duration_s=1.0)
+    done = threading.Event()
+
+    def signal_while_holding_the_lock() -> None:
+        with app.stop_event._cond:  # where Event.wait() is when the signal comes
+            app._on_signal(signal.SIGTERM, None)
+        done.set()
+
+    threading.Thread(target=signal_while_holding_the_lock, daemon=True).start()
+    assert done.wait(5.0), "the signal handler waited for the lock its own thread holds"
+    assert not app.stop_event.is_set() and app.signalled == signal.SIGTERM
+    app._take_signal()
+    assert app.stop_event.is_set()
 
 
 def test_a_dead_thread_fails_the_run_with_exit_1(recorded: dict, tmp_path: Path,

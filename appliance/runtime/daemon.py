@@ -93,6 +93,8 @@ class Appliance:
         self.duration_s = duration_s
         self.announce = announce
         self.stop_event = threading.Event()
+        #: The signal (SIGTERM, SIGINT) that asked the run to stop, see :meth:`_on_signal`.
+        self.signalled: int | None = None
         self.counters = Counters()
         self._threads: list[threading.Thread] = []
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
@@ -386,6 +388,7 @@ class Appliance:
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
+            self._take_signal()
             self.pool.supervise(self.stop_event.is_set())
             trim.tick()
             if t_end is not None and time.monotonic() >= t_end:
@@ -409,8 +412,18 @@ class Appliance:
             self.stop_event.set()
 
     def _on_signal(self, signum: int, frame: Any) -> None:
-        log.info("signal %d: shutting down", signum)
-        self.stop_event.set()
+        # Only an assignment here. Python runs the handler in the main thread between two
+        # bytecodes, which may be inside ``stop_event.wait()`` while it holds the event's
+        # lock: ``stop_event.set()`` (or a log call, whose handler has a lock too) then
+        # waited for itself, and a SIGTERM from systemd left the daemon hanging with every
+        # file open (seen once in the test suite). ``_wait`` takes the signal within 0.2 s.
+        self.signalled = signum
+
+    def _take_signal(self) -> None:
+        """Stop the run if a signal asked for it (called by the main thread's wait loop)."""
+        if self.signalled is not None and not self.stop_event.is_set():
+            log.info("signal %d: shutting down", self.signalled)
+            self.stop_event.set()
 
     def _health_counters(self) -> dict[str, int]:
         return health_counters(self)
