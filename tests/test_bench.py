@@ -19,13 +19,19 @@ def _positive_finite(x: object) -> bool:
     return isinstance(x, float) and math.isfinite(x) and x > 0
 
 
+REPO = Path(__file__).resolve().parents[1]
+#: A shipped speed setting, so that the run below also checks that the file works.
+COARSE = REPO / "benchmarks" / "configs" / "coarse-warm-pyramid.yaml"
+
+
 def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "bench.json"
     args = ["bench", "--source", "blob", "--frames", "6", "--runs", "2", "--warmup", "1",
             "--seconds", "1", "--workers-max", "2", "--cache-dir", str(tmp_path / "cache"),
-            "--json", str(out)]
+            "--json", str(out), "--config", str(COARSE)]
     assert cli.main(args) == cli.EXIT_OK
     res = json.loads(out.read_text())
+    assert res["config"] == str(COARSE)
     assert set(res["stages_ms"]) == set(bm.STAGES)
     assert all(_positive_finite(v) for v in res["stages_ms"].values())
     assert _positive_finite(res["chain_ms"])
@@ -93,6 +99,27 @@ def test_triples_consecutive_with_gap_at_wrap() -> None:
 ])
 def test_bad_options_exit_2(change: list[str], tmp_path: Path) -> None:
     assert cli.main(["bench", "--cache-dir", str(tmp_path), *change]) == cli.EXIT_USAGE
+
+
+def test_a_wrong_configuration_key_exits_2_before_any_input_is_made(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "site.yaml"
+    config.write_text("processing:\n  parameters:\n    warm_flow_option: {n_levels: 4}\n")
+    cache = tmp_path / "cache"
+    assert cli.main(["bench", "--cache-dir", str(cache), "--config", str(config)]) \
+        == cli.EXIT_USAGE
+    assert "warm_flow_option" in capsys.readouterr().err
+    assert not cache.exists()
+
+
+def test_the_throughput_workers_run_the_given_parameters() -> None:
+    frames = bm.load_frames("blob", n_frames=6)
+    # A block size that does not divide 320x240 fails in the chain, so only a worker that
+    # runs these parameters fails.
+    with pytest.raises(RuntimeError, match="bench worker failed"):
+        bm.measure_throughput(frames, 1, seconds=0.2, warmup=1,
+                              params=ChainParameters(binning=3))
+    assert bm.measure_throughput(frames, 1, seconds=0.2, warmup=1).triples >= 1
 
 
 def test_field_preset_matches_bench_geometry() -> None:

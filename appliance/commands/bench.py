@@ -22,7 +22,7 @@ def register(root: argparse._SubParsersAction) -> None:
         help="time every stage of the scene-flow chain and pairs/s with 1..N workers",
         description=(
             "Runs the scene-flow chain (compute_scene_flow, the daemon's code, default "
-            "parameters) at 320x240 (or --size 640x480) on "
+            "parameters or --config's) at 320x240 (or --size 640x480) on "
             "raw 16-bit stereo frames of a moving gas plume and reports: the median wall time "
             "of each stage and of the whole chain, warm (consecutive triples, started from "
             "the previous one as in the daemon), warm again with the active region off (the "
@@ -38,7 +38,8 @@ def register(root: argparse._SubParsersAction) -> None:
             "The machine load is printed with the numbers: on a shared machine wall times "
             "grow with the load, CPU times and ratios much less."
         ),
-        epilog="example: ogiflow bench --json bench.json",
+        epilog="example: ogiflow bench --json bench.json; "
+               "ogiflow bench --config benchmarks/configs/coarse-warm-pyramid.yaml",
     )
     p.add_argument("--json", type=Path, metavar="OUT",
                    help='write {"stages_ms": {...}, "chain_ms": ..., "pairs_per_s": '
@@ -65,6 +66,11 @@ def register(root: argparse._SubParsersAction) -> None:
                         "pairs/s run on at least 62 frames (cold starts as in the daemon)")
     p.add_argument("--cache-dir", type=Path, metavar="DIR",
                    help="where generated input is cached (default ~/.cache/ogiflow/bench)")
+    p.add_argument("--config", type=Path, metavar="FILE",
+                   help="time the chain with this configuration file's "
+                        "processing.parameters (as `ogiflow run --config FILE` runs it) "
+                        "instead of the defaults; the warm column turns its active region "
+                        "on, the 'no region' column off")
     p.set_defaults(func=run)
 
 
@@ -100,21 +106,26 @@ def run(args: argparse.Namespace) -> int:
     """Measure and print (and optionally write) the chain's speed."""
     _check_args(args)
     # Imported when the command runs: the CLI imports every command module for its parser.
-    from appliance.evaluation import benchmark as bm
-    from processing.chain import ChainParameters
+    from dataclasses import replace
 
+    from appliance.evaluation import benchmark as bm
+    from appliance.evaluation.sceneflow_setup import load_processing
+
+    # The configuration is checked before anything is rendered or timed (exit 2).
+    params = load_processing(args.config).chain_parameters({})
     load_start = bm.load_average()
     frames = bm.load_frames(args.source, n_frames=args.frames, cache_dir=args.cache_dir,
                             image_size=_size(args.size))
     try:
         # The warm columns with the active region on, the 'no region' ones are the
         # default chain (the region is off by default: it trades mask accuracy for speed).
-        st = bm.measure_stages(frames, ChainParameters(active_region=True), runs=args.runs,
+        st = bm.measure_stages(frames, replace(params, active_region=True), runs=args.runs,
                                warmup=args.warmup)
         long = frames if len(frames.times_s) >= bm.THROUGHPUT_MIN_FRAMES else bm.load_frames(
             args.source, n_frames=bm.THROUGHPUT_MIN_FRAMES, cache_dir=args.cache_dir,
             image_size=_size(args.size))
-        through = [bm.measure_throughput(long, n, seconds=args.seconds, warmup=args.warmup)
+        through = [bm.measure_throughput(long, n, seconds=args.seconds, warmup=args.warmup,
+                                         params=params)
                    for n in range(1, args.workers_max + 1)]
     except RuntimeError as exc:
         raise cli.CommandError(str(exc)) from exc
@@ -124,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     full = st.times("warm_full")
     ratios, cold_ratios, full_ratios = st.ratios("warm"), st.ratios("cold"), st.ratios("warm_full")
     w, h = frames.image_size
+    print(f"parameters: {args.config or 'the defaults'}")
     print(f"input: {args.source}, {len(frames.times_s)} frames {w}x{h} uint16 cycled; "
           f"{warm.runs} timed chain calls each warm, warm without the active region and "
           f"cold after {args.warmup} warm-up; 1 thread per process")
@@ -197,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
                       "dram_bandwidth_gb_s": fl.dram_bandwidth_gb_s,
                       "cache_floor_ms": fl.cache_floor_ms, "dram_floor_ms": fl.dram_floor_ms},
             "source": args.source,
+            "config": None if args.config is None else str(args.config),
             "image_size": [w, h],
             "runs": warm.runs,
             "seconds": args.seconds,

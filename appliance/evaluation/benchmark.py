@@ -255,8 +255,8 @@ class Throughput:
         return self.triples / self.cpu_s
 
 
-def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, stride: int,
-            barrier: Any, results: Any, shift_table: Any) -> None:
+def _worker(frames: BenchFrames, params: ChainParameters, seconds: float, warmup: int,
+            offset: int, stride: int, barrier: Any, results: Any, shift_table: Any) -> None:
     """One throughput worker (spawned): warm up, wait for the others, run ``seconds``.
 
     It takes every ``stride``-th triple from ``offset`` on and shares registration shifts
@@ -266,7 +266,7 @@ def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, strid
     os.environ["OMP_NUM_THREADS"] = "1"
     single_thread()
 
-    geo, params = geometry(frames.image_size), ChainParameters()
+    geo = geometry(frames.image_size)
     state = ChainState(stride=stride if stride in STRIDES else 1,
                        shifts=SharedShiftMemo(shift_table))
     triples = iter_triples(frames)
@@ -293,8 +293,9 @@ def _worker(frames: BenchFrames, seconds: float, warmup: int, offset: int, strid
 
 
 def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10.0,
-                       warmup: int = 3) -> Throughput:
-    """Pairs/s with ``workers`` spawned processes running the chain back to back.
+                       warmup: int = 3, params: ChainParameters | None = None) -> Throughput:
+    """Pairs/s with ``workers`` spawned processes running the chain back to back, with
+    ``params`` (default: the chain's defaults).
 
     All workers start together after their own warm-up (a barrier); the wall time is the
     longest of theirs (each stops after the first triple completed past ``seconds``).
@@ -307,8 +308,9 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
     barrier = ctx.Barrier(workers)
     results = ctx.Queue()
     shift_table = create_shift_table(ctx)
-    procs = [ctx.Process(target=_worker, args=(frames, seconds, warmup, i, workers, barrier,
-                                               results, shift_table), daemon=True)
+    params = ChainParameters() if params is None else params
+    procs = [ctx.Process(target=_worker, args=(frames, params, seconds, warmup, i, workers,
+                                               barrier, results, shift_table), daemon=True)
              for i in range(workers)]
     for p in procs:
         p.start()

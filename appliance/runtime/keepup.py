@@ -99,8 +99,9 @@ def keep_up_advice(image_size: tuple[int, int], binning: int, *,
     if w > 320 and binning == 1 and w % 2 == 0 and h % 2 == 0:
         hints.append(f"bin the {w}x{h} cameras' pixels (processing.parameters.binning: 2, a "
                      "quarter of the chain's work)")
-    hints.append("or trade accuracy for speed (processing.parameters: the active region and "
-                 "fewer warm pyramid levels; docs/performance.md, one core)")
+    hints.append("or trade accuracy for speed (processing.parameters: a coarser warm pyramid, "
+                 "fewer warm pyramid levels, the active region; docs/performance.md, "
+                 "benchmarks/configs/)")
     return ", ".join(hints)
 
 
