@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
 from appliance.evaluation.bench_input import blob_frames, geometry
 from processing.chain import ChainParameters, ChainState, compute_scene_flow
-from processing.chain.region import Box, bounding_box, choose_region, right_shift
+from processing.chain.region import (
+    Box,
+    bounding_box,
+    choose_region,
+    measured_area,
+    right_shift,
+)
 
 
 def test_bounding_box_grows_by_the_margin_and_snaps_outwards_to_the_grid() -> None:
@@ -94,3 +101,44 @@ def test_the_boxed_fields_agree_with_the_whole_frame_on_the_gas(blob_runs) -> No
         # the active region is off by default); bounded so that a worse one fails.
         overlap = gas.sum() / max(full.gas_mask.sum(), boxed.gas_mask.sum())
         assert overlap > 0.5
+
+
+def test_the_measured_area_leaves_out_the_box_outside_and_the_border_strip() -> None:
+    shape = (240, 320)
+    assert measured_area(shape, None, 0) is None
+    area = measured_area(shape, None, 3)
+    assert area is not None
+    assert not area[:3].any() and not area[-3:].any()
+    assert not area[:, :3].any() and not area[:, -3:].any()
+    assert area[3:-3, 3:-3].all()
+    boxed = measured_area(shape, Box(0, 120, 100, 320), 3)
+    assert boxed is not None
+    assert boxed.sum() == (120 - 3) * (320 - 3 - 100)
+
+
+def _shaken(frames: list[np.ndarray], shifts: list[tuple[float, float]]) -> list[np.ndarray]:
+    """Each frame translated by its (dx, dy) px, as a shaking camera would see it."""
+    out = []
+    for f, (dx, dy) in zip(frames, shifts, strict=True):
+        m = np.float32([[1, 0, dx], [0, 1, dy]])
+        moved = cv2.warpAffine(f.astype(np.float32), m, (f.shape[1], f.shape[0]),
+                               flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+        out.append(np.rint(moved).astype(np.uint16))
+    return out
+
+
+def test_no_gas_and_no_velocity_in_the_strip_the_registration_filled() -> None:
+    frames = blob_frames(n_frames=3)
+    shake = [(0.0, 0.0), (0.6, -0.5), (-0.4, 0.7)]
+    left = _shaken([frames.left[i] for i in range(3)], shake)
+    right = _shaken([frames.right[i] for i in range(3)], shake)
+    res = compute_scene_flow(left, right, frames.times_s[:3], geometry(frames.image_size),
+                             ChainParameters())
+    moved = max(abs(v) for s in (*res.shifts_left, *res.shifts_right) for v in s)
+    assert moved > 0.3  # the registration did warp the frames
+    b = int(np.ceil(moved)) + 2
+    strip = ~measured_area(res.valid.shape, None, b)
+    assert not (res.gas_mask & strip).any()
+    assert not (res.valid & strip).any() and not (res.u_sf_valid & strip).any()
+    # the rest of the frame is still measured
+    assert res.valid[~strip].mean() > 0.5

@@ -41,7 +41,13 @@ from processing.chain.binning import (
 )
 from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
 from processing.chain.parameters import ChainParameters
-from processing.chain.region import Box, choose_region, crop_inputs, paste_fields
+from processing.chain.region import (
+    Box,
+    choose_region,
+    crop_inputs,
+    measured_area,
+    paste_fields,
+)
 from processing.chain.result import SceneFlowResult, frame_interval
 from processing.chain.scale import gas_radiance, initial_scale
 from processing.chain.state import ChainState, Times, WarmStart, solver_options
@@ -144,9 +150,10 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
                        pyramids)
     flow, d, dd = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
-    mask, phi = _segment(box, pl.diff0, flow, params)
+    area = measured_area(d.shape, box, max(pl.border_px, pr.border_px))
+    mask, phi = _segment(area, pl.diff0, flow, params)
     clock.lap("segmentation")
-    velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, mask, box,
+    velocity, position, valid, u_sf, u_sf_valid = _velocity(pl, pr, flow, d, dd, mask, area,
                                                             blanked, geometry, params, dt)
     clock.lap("velocity_quality")
     summary, implausible = _summary(velocity, valid, mask, u_sf, u_sf_valid, flags, params)
@@ -306,19 +313,21 @@ def _region(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | N
                          max_fraction=params.region_max_fraction)
 
 
-def _segment(box: Box | None, diff: np.ndarray, flow: np.ndarray, params: ChainParameters
-             ) -> tuple[np.ndarray, np.ndarray]:
-    """Stage 5 (Sec. 4.4, Eq. 9): the gas mask and phi, (H, W); the mask only in the box.
+def _segment(area: np.ndarray | None, diff: np.ndarray, flow: np.ndarray,
+             params: ChainParameters) -> tuple[np.ndarray, np.ndarray]:
+    """Stage 5 (Sec. 4.4, Eq. 9): the gas mask and phi, (H, W); the mask only in the
+    measured ``area`` (:func:`processing.chain.region.measured_area`; None: everywhere).
 
-    The level set runs on the whole frame, outside the box on the zero flow left there:
-    on the box alone it has too little background to split off (measured on the default
-    robustness matrix: the mask shrank towards the plume's core, ideal RMVE 7.0 -> 9.8 %).
+    The level set runs on the whole frame, outside the solvers' box on the zero flow left
+    there: on the box alone it has too little background to split off (measured on the
+    default robustness matrix: the mask shrank towards the plume's core, ideal RMVE 7.0 ->
+    9.8 %).
     """
     seg = segment_gas(diff, flow, nu=params.nu, **params.segmentation_options)
-    if box is None:
+    if area is None:
         return seg.mask, seg.phi
-    inside = box.mask(diff.shape)
-    # phi > 0 means gas: outside the box it is turned negative with the mask.
+    inside = area
+    # phi > 0 means gas: outside the area it is turned negative with the mask.
     return seg.mask & inside, np.where(inside, seg.phi, -np.abs(seg.phi) - np.float32(1e-3))
 
 
@@ -380,12 +389,12 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
 
 
 def _velocity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray, d: np.ndarray,
-              dd: np.ndarray, gas: np.ndarray, box: Box | None,
+              dd: np.ndarray, gas: np.ndarray, area: np.ndarray | None,
               blanked: tuple[np.ndarray, np.ndarray] | None, geometry: StereoGeometry,
               params: ChainParameters, dt: float) -> tuple[np.ndarray, ...]:
     """Stage 4: velocity (Eq. 4), surface position and U_SF (Eq. 7) in one compiled pass; U_SF
     only on the ``gas`` mask, the region c_USF (Eq. 8) averages it over; nothing valid
-    outside the solvers' ``box`` nor where the depth gate ``blanked`` the left view."""
+    outside the measured ``area`` nor where the depth gate ``blanked`` the left view."""
     out = velocity_and_quality(
         flow, d, dd, (pl.diff0, pr.diff0, pl.diff1, pr.diff1),
         principal_point=geometry.principal_point, camera_constant=geometry.camera_constant,
@@ -393,7 +402,7 @@ def _velocity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray, 
         quality_mask=gas)
     # A blanked pixel shows "no change", and the segmentation may keep it: ~0 m/s, no gas.
     drop = np.zeros(d.shape, bool) if blanked is None else blanked[0].copy()
-    if box is not None:
-        drop |= ~box.mask(d.shape)
+    if area is not None:
+        drop |= ~area
     out[2][drop] = out[4][drop] = False  # valid, u_sf_valid
     return out

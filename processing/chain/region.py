@@ -73,6 +73,28 @@ class Box:
         return out
 
 
+def measured_area(shape: tuple[int, int], box: Box | None, border_px: int
+                  ) -> np.ndarray | None:
+    """Where the chain measures, (H, W) bool: inside the solvers' ``box`` and off the border
+    strip of ``border_px`` the registration's warps filled with mirrored values
+    (:attr:`processing.preprocess.differential.PreprocessedTriple.border_px`); None when that
+    is the whole frame.
+
+    A strip is no measurement: under 0.3-0.7 px of jitter its mirrored rows changed from one
+    frame to the next by more than the gas does on a textured background, and the level set
+    called them gas (measured on a development scene of the wide matrix: up to 2,900 false
+    gas pixels in one triple, along the image's rows 0-6).
+    """
+    if box is None and border_px <= 0:
+        return None
+    inside = np.ones(shape, bool) if box is None else box.mask(shape)
+    b = min(border_px, min(shape) // 2)
+    if b > 0:
+        inside[:b] = inside[-b:] = False
+        inside[:, :b] = inside[:, -b:] = False
+    return inside
+
+
 def active_pixels(diffs: tuple[np.ndarray, ...], flow: np.ndarray | None) -> np.ndarray:
     """Pixels whose contrast stands out of the frame's spread.
 
