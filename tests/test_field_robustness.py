@@ -15,8 +15,10 @@ from processing.chain import (
     compute_scene_flow,
     initial_scale,
 )
+from processing.chain.region import measured_area
 from processing.preprocess.differential import PreprocessedTriple, scale_samples
 from processing.preprocess.registration import estimate_shift_checked
+from processing.preprocess.translation import warp_border_px
 from processing.synthetic.cameras import pixel_mean_background
 from processing.synthetic.imaging import (
     Background,
@@ -142,7 +144,13 @@ def test_pixels_the_gate_blanked_carry_no_valid_velocity() -> None:
     assert "object_motion_rejected" in res.summary.flags
     disk = _object_disk(15.0)
     assert res.valid[disk].mean() < 0.2
-    assert res.valid[~_object_disk(40.0)].mean() > 0.9
+    # Elsewhere the velocity is valid, but for the registration's border strips, where
+    # nothing is measured (processing.chain.region.measured_area).
+    border = max(warp_border_px(s[0], (s[0][0] + s[1][0], s[0][1] + s[1][1]))
+                 for s in (res.shifts_left, res.shifts_right))
+    area = measured_area(res.valid.shape, None, border)
+    elsewhere = ~_object_disk(40.0) if area is None else ~_object_disk(40.0) & area
+    assert res.valid[elsewhere].mean() > 0.9
 
 
 def test_a_negative_gate_tolerance_is_refused() -> None:
