@@ -16,9 +16,12 @@ from processing.chain import (
     initial_scale,
 )
 from processing.chain.region import measured_area
-from processing.preprocess.differential import PreprocessedTriple, scale_samples
+from processing.preprocess.differential import (
+    PreprocessedTriple,
+    scale_samples,
+    triple_border_px,
+)
 from processing.preprocess.registration import estimate_shift_checked
-from processing.preprocess.translation import warp_border_px
 from processing.synthetic.cameras import pixel_mean_background
 from processing.synthetic.imaging import (
     Background,
@@ -146,8 +149,7 @@ def test_pixels_the_gate_blanked_carry_no_valid_velocity() -> None:
     assert res.valid[disk].mean() < 0.2
     # Elsewhere the velocity is valid, but for the registration's border strips, where
     # nothing is measured (processing.chain.region.measured_area).
-    border = max(warp_border_px(s[0], (s[0][0] + s[1][0], s[0][1] + s[1][1]))
-                 for s in (res.shifts_left, res.shifts_right))
+    border = max(triple_border_px(res.shifts_left), triple_border_px(res.shifts_right))
     area = measured_area(res.valid.shape, None, border)
     elsewhere = ~_object_disk(40.0) if area is None else ~_object_disk(40.0) & area
     assert res.valid[elsewhere].mean() > 0.9

@@ -326,9 +326,8 @@ def _segment(area: np.ndarray | None, diff: np.ndarray, flow: np.ndarray,
     seg = segment_gas(diff, flow, nu=params.nu, **params.segmentation_options)
     if area is None:
         return seg.mask, seg.phi
-    inside = area
     # phi > 0 means gas: outside the area it is turned negative with the mask.
-    return seg.mask & inside, np.where(inside, seg.phi, -np.abs(seg.phi) - np.float32(1e-3))
+    return seg.mask & area, np.where(area, seg.phi, -np.abs(seg.phi) - np.float32(1e-3))
 
 
 def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,

@@ -195,9 +195,16 @@ class PreprocessedTriple:
     def border_px(self) -> int:
         """Width of the border strip of ``raw0``/``raw1`` (and the diffs) that the
         registration's warps filled with mirrored values rather than measurements, px
-        (:func:`processing.preprocess.translation.warp_border_px` of t1's and t2's shifts)."""
-        s01, s12 = self.shifts
-        return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
+        (:func:`triple_border_px` of its shifts)."""
+        return triple_border_px(self.shifts)
+
+
+def triple_border_px(shifts: tuple[tuple[float, float], tuple[float, float]]) -> int:
+    """Width of the border strip a triple's registration filled with mirrored values, px:
+    :func:`processing.preprocess.translation.warp_border_px` of the warps of t1 (shift
+    t0 -> t1) and t2 (t0 -> t1 plus t1 -> t2), from the triple's ``shifts`` (s01, s12)."""
+    s01, s12 = shifts
+    return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
 
 
 def preprocess_camera(
