@@ -29,12 +29,10 @@ FAR_WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_inner": 2, "n_sor": 8}
 MAX_BINNING = 4
 #: The disparity's options on a warm start. Its finest level runs one lagged iteration: there
 #: it moves d by 0.004 px and d' by 0.0001 px on average (the bench's plume,
-#: benchmarks/warm_level_updates.py), and the second one changed Table 3 by at most 0.07. Its
-#: linear systems are solved after 4 SOR sweeps: 8 or 30 read Table 3 the same within 0.1
-#: (the flow's are not, and solving them further reads V_Z worse; docs/performance.md,
-#: "Fewer passes on a warm start").
+#: benchmarks/warm_level_updates.py), and the second one changed Table 3 by at most 0.07 for
+#: 8 % of the disparity's time (docs/performance.md, "Fewer passes on a warm start").
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
-                                              "n_inner_finest": 1, "n_sor": 4}
+                                              "n_inner_finest": 1, "n_sor": 8}
 
 
 @dataclass(frozen=True)

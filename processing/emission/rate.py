@@ -60,7 +60,7 @@ def single_camera_velocity(flow: np.ndarray, distance_m: float, camera_constant:
 #: flagged ``line_of_sight``: there the image sees less than 57 % of the speed, and the
 #: rate's error grew with the angle. Measured with ``ogiflow eval emission`` (docs/accuracy.md,
 #: emission rate), the angle as this module measures it: 2-14 deg within
-#: 4.7 %, 35-50 deg within 6.8 %, 69 deg +18.6 % (that scene's simulated truth loses gas in
+#: 4.7 %, 35-50 deg within 6.9 %, 69 deg +18.5 % (that scene's simulated truth loses gas in
 #: mid-image, so the share the measurement owes is not known); the flag sits between.
 LINE_OF_SIGHT_DEG = 55.0
 
