@@ -41,7 +41,7 @@ def _recording(inner: Callable[..., None], log: list[tuple[str, int, float, floa
     def run(terms: Any, x1: np.ndarray, x2: np.ndarray, *args: Any) -> None:
         before1, before2 = x1.copy(), x2.copy()
         inner(terms, x1, x2, *args)
-        # a level's px are (its width / the finest width) of a finest px; log the latter
+        # in the level's own px; measure() converts them to px of the finest level
         log.append((type(terms).__name__.strip("_").removesuffix("Terms"), x1.shape[1],
                     float(np.mean(np.abs(x1 - before1))), float(np.mean(np.abs(x2 - before2))),
                     float(np.percentile(np.abs(x1 - before1), 99))))
