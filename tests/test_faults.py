@@ -7,11 +7,13 @@ sleeps for the outcome). Printed figures (``-s``) are the ones in docs/operation
 
 from __future__ import annotations
 
+import fcntl
 import itertools
 import os
 import signal
 import subprocess
 import sys
+import termios
 import threading
 import time
 from collections import Counter
@@ -171,25 +173,60 @@ def test_full_disk_pauses_recording_not_the_daemon(scene_cache: Path, tmp_path: 
     assert len(closed_files(tmp_path / "rec")) >= 2
 
 
-def test_killed_worker_is_replaced(scene_cache: Path, tmp_path: Path) -> None:
-    """SIGKILL of a worker process: the daemon starts a new one, processing resumes."""
+def _pipe_bytes(conn: Any) -> int:
+    """Bytes waiting in the pipe of a worker's results (``FIONREAD``)."""
+    return int.from_bytes(fcntl.ioctl(conn.fileno(), termios.FIONREAD, b"\0" * 4), "little")
+
+
+def _pipe_full(conn: Any) -> bool:
+    """The pipe holds at least 48 KiB and took no byte more in 0.5 s (its writer is blocked)."""
+    n = _pipe_bytes(conn)
+    time.sleep(0.5)
+    return n >= 48 * 1024 and _pipe_bytes(conn) == n
+
+
+def test_worker_killed_while_writing_a_result_is_replaced(scene_cache: Path,
+                                                         tmp_path: Path) -> None:
+    """SIGKILL of the worker in the middle of writing a result to the daemon (the worst moment:
+    half a result in the pipe): the daemon starts a new worker, and processing resumes."""
     app = make_app(scene_cache, tmp_path / "rec", ("processing.enabled", True),
                    ("processing.workers", 1))
     c = app.counters
     seen: dict[str, Any] = {}
+    release = threading.Event()
 
     def scenario() -> None:
         wait_for(app, lambda: c.results >= 2, "first results (numba loading)", 240)
+        pool = app.pool
+        handle = pool._handle
+
+        def held(res: Any) -> None:  # the daemon takes a result and reads no further
+            release.wait(120)
+            handle(res)
+
+        pool._handle = held
+        # A full pipe with the daemon not reading: the worker is blocked inside a write of a
+        # result (a pipe holds 64 KiB, less what separate small writes leave of its pages).
+        (pipe,) = pool._results._readers
+        wait_for(app, lambda: _pipe_full(pipe), "the worker blocked writing", 120)
         os.kill(app.pool.workers[0].pid, signal.SIGKILL)
         t_kill = time.monotonic()
+        pool._handle = handle
+        release.set()
         wait_for(app, lambda: c.worker_restarts == 1, "a new worker")
+        # The torn result reads as the end of the dead worker's pipe: what comes next is
+        # the new worker's.
+        wait_for(app, lambda: pipe not in pool._results._readers, "the dead worker's pipe closed")
         before = c.results
         wait_for(app, lambda: c.results >= before + 2, "results from the new worker", 240)
         seen["resume_s"] = time.monotonic() - t_kill
 
-    assert run_with(app, scenario)["code"] == 0
-    print(f"worker SIGKILL: processing resumed after {seen['resume_s']:.1f} s; "
-          f"camera frames lost {c.frames_lost}")
+    try:
+        assert run_with(app, scenario)["code"] == 0
+    finally:
+        release.set()
+    print(f"worker SIGKILL while writing a result: processing resumed after "
+          f"{seen['resume_s']:.1f} s; camera frames lost {c.frames_lost}")
     assert c.frames_lost == {"left": 0, "right": 0} and c.frame_queue_drops == 0
 
 

@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing as mp
-import queue
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -21,6 +20,7 @@ import numpy as np
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
+from appliance.runtime.result_channel import ResultReceiver, free_if_orphaned
 from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.worker_result import WorkerResult
@@ -29,8 +29,12 @@ from processing.chain.driver import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
-#: Results in flight from the workers to the daemon (see :meth:`WorkerPool.start`).
+#: Results in flight from the workers to the daemon, all workers together (see
+#: :meth:`WorkerPool.start`).
 RESULTS_QUEUE_SIZE = 8
+#: How long a lock a worker shares stays taken after that worker died before it is taken to be
+#: the dead worker's (its critical sections last microseconds).
+ORPHANED_LOCK_WAIT_S = 2.0
 
 
 class WorkerPool:
@@ -88,10 +92,10 @@ class WorkerPool:
         stack.callback(self._release_ring)
         self._mp = mp.get_context("spawn")
         # About half a second of results: each carries 0.1-0.3 MB (2.6 MB with the full
-        # fields the daemon asked for), and a full queue is held in the workers' memory (64 made
-        # 130-160 MB steps when the daemon was starved of CPU). A result not taken within
-        # 1 s is counted as a skipped triple.
-        self._results = self._mp.Queue(maxsize=RESULTS_QUEUE_SIZE)
+        # fields the daemon asked for), and what the daemon has not read is held in the
+        # workers' memory (64 made 130-160 MB steps when the daemon was starved of CPU). A
+        # result not taken within 1 s is counted as a skipped triple.
+        self._results = ResultReceiver(self._mp)
         self._stop = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
         self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
@@ -112,6 +116,9 @@ class WorkerPool:
                 continue
             log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
             self.counters.worker_restarts += 1
+            # It may have died inside a critical section: the others would wait for ever.
+            for lock in (self.ring.reader_lock, self._shift_table.get_lock()):
+                free_if_orphaned(lock, ORPHANED_LOCK_WAIT_S)
             self._workers[i] = self._start_worker(i)
 
     @property
@@ -134,29 +141,32 @@ class WorkerPool:
         self._done.set()
         if self._thread is not None:
             self._thread.join(timeout=1.0)
+        self._results.close()
 
     def _start_worker(self, i: int) -> Any:
+        n = self.cfg.processing.workers
+        pipe = self._results.open()
         p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                             args=(i, self.ring.handle(), self._results, self._stop,
-                                   self.geometry, self.params, self.cfg.processing.workers,
-                                   self.emission, self.sonic_k, self._shift_table,
-                                   self.fields_wanted),
+                             args=(i, self.ring.handle(), (pipe, max(1, RESULTS_QUEUE_SIZE // n)),
+                                   self._stop, self.geometry, self.params, n, self.emission,
+                                   self.sonic_k, self._shift_table, self.fields_wanted),
                              daemon=True)
-        p.start()
+        try:
+            p.start()
+        finally:
+            self._results.started(pipe)
         return p
 
     def _results_loop(self) -> None:
         while True:
-            try:
-                res: WorkerResult = self._results.get(timeout=0.1)
-            except queue.Empty:
-                if self._done.is_set():
-                    break
-                continue
-            try:
-                self._handle(res)
-            except Exception:
-                log.exception("result of pair %s could not be handled", res.pair_indices)
+            batch: list[WorkerResult] = self._results.get(timeout=0.1)
+            if not batch and self._done.is_set():
+                break
+            for res in batch:
+                try:
+                    self._handle(res)
+                except Exception:
+                    log.exception("result of pair %s could not be handled", res.pair_indices)
 
     def _release_ring(self) -> None:
         self.ring.close()

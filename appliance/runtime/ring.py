@@ -202,6 +202,12 @@ class PairRing:
         return cls(shm, handle.capacity, handle.shape, np.dtype(handle.dtype), handle.lock,
                    owner=False)
 
+    @property
+    def reader_lock(self) -> Any:
+        """The readers' lock (``multiprocessing.Lock``): the daemon gives it back if a reader
+        died holding it (:func:`appliance.runtime.result_channel.free_if_orphaned`)."""
+        return self._lock
+
     def handle(self) -> RingHandle:
         """The picklable description for :meth:`attach`."""
         return RingHandle(self._shm.name, self.capacity, self.shape, self.dtype.str, self._lock)

@@ -22,8 +22,12 @@ _FIELDS = 6
 
 
 def create_shift_table(ctx: Any, slots: int = SLOTS) -> Any:
-    """A shared table for :class:`SharedShiftMemo` (``ctx``: a multiprocessing context)."""
-    return ctx.Array("d", [math.nan] * (slots * _FIELDS), lock=True)
+    """A shared table for :class:`SharedShiftMemo` (``ctx``: a multiprocessing context).
+
+    Its lock is a plain (not re-entrant) lock, so that the daemon can give it back when a
+    worker died holding it (:func:`appliance.runtime.result_channel.free_if_orphaned`).
+    """
+    return ctx.Array("d", [math.nan] * (slots * _FIELDS), lock=ctx.Lock())
 
 
 class SharedShiftMemo:
@@ -34,15 +38,17 @@ class SharedShiftMemo:
     """
 
     def __init__(self, table: Any) -> None:
-        self._table = table
-        self._slots = len(table) // _FIELDS
+        self._lock = table.get_lock()
+        # The raw array: the synchronized wrapper would take the (not re-entrant) lock again.
+        self._table = table.get_obj()
+        self._slots = len(self._table) // _FIELDS
 
     def _slot(self, camera: int, t_from: float) -> int:
         return (round(t_from * 1000.0) * 2 + camera) % self._slots * _FIELDS
 
     def get(self, camera: int, t_from: float, t_to: float) -> KnownShift | None:
         i = self._slot(camera, t_from)
-        with self._table.get_lock():
+        with self._lock:
             row = self._table[i:i + _FIELDS]
         if row[0] != camera or row[1] != t_from or row[2] != t_to:
             return None
@@ -52,5 +58,5 @@ class SharedShiftMemo:
             rejected: bool) -> None:
         i = self._slot(camera, t_from)
         row = [float(camera), t_from, t_to, float(shift[0]), float(shift[1]), float(rejected)]
-        with self._table.get_lock():
+        with self._lock:
             self._table[i:i + _FIELDS] = row

@@ -6,8 +6,8 @@ newest window of three consecutive pairs (t0, t1, t2), copies it out, and runs
 :func:`processing.chain.driver.compute_scene_flow` - the same function replay, evaluation and
 benchmarks call. When processing falls behind, older windows are skipped and counted;
 acquisition and recording never wait for a worker. Results go back to the daemon through
-a multiprocessing queue as :class:`WorkerResult` (fields reduced to what the recorder and
-the live view need).
+a pipe per worker (:mod:`appliance.runtime.result_channel`) as :class:`WorkerResult`
+(fields reduced to what the recorder and the live view need).
 
 How the workers share the stream (measured, docs/performance.md): a warm start from the
 previous triple makes a triple about twice as cheap as a cold one, but only a worker that
@@ -22,7 +22,6 @@ that it skips to the newest. More than two workers take the newest window of any
 from __future__ import annotations
 
 import os
-import queue
 import time
 import traceback
 from typing import Any
@@ -33,6 +32,7 @@ import numpy as np
 
 from appliance.memory import PeriodicTrim, keep_freed_memory
 from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
+from appliance.runtime.result_channel import ResultSender
 from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import SharedShiftMemo
 from appliance.runtime.single_camera import SingleCameraWorker, window_camera
@@ -85,8 +85,10 @@ def worker_main(
         Index of this worker (for the health counters).
     ring_handle : appliance.runtime.ring.RingHandle
         Shared-memory ring to attach to.
-    results : multiprocessing.Queue
-        Where :class:`WorkerResult` objects go.
+    results : (multiprocessing.connection.Connection, int)
+        Where :class:`WorkerResult` objects go: the write end of this worker's pipe
+        (:class:`appliance.runtime.result_channel.ResultReceiver`) and how many results to
+        buffer while the daemon does not read.
     stop : multiprocessing.Event
         Set by the daemon to end the worker.
     geometry, params
@@ -114,6 +116,7 @@ def worker_main(
     worker = _Worker(worker_id, ring, n_workers, geometry, params, emission, sonic_k,
                      shift_table, fields_wanted)
     trim = PeriodicTrim()
+    sender = ResultSender(*results)
     try:
         while not stop.is_set():
             window = worker.take()
@@ -121,9 +124,10 @@ def worker_main(
                 continue
             base, camera, left, right = window
             worker.process(base, camera, left, right)
-            worker.deliver(results, base)
+            worker.deliver(sender, base)
             trim.tick()
     finally:
+        sender.close(timeout=1.0)
         ring.close()
 
 
@@ -225,12 +229,10 @@ class _Worker:
         elif self.emission is not None:
             base.rate = NO_RADIOMETRY
 
-    def deliver(self, results: Any, base: WorkerResult) -> None:
+    def deliver(self, sender: ResultSender, base: WorkerResult) -> None:
         """Send ``base`` to the daemon; one it does not take within a second is counted
         with the next result's skipped windows."""
-        try:
-            results.put(base, timeout=1.0)
-        except queue.Full:
+        if not sender.put(base, timeout=1.0):
             self.undelivered += 1
 
 
