@@ -109,6 +109,19 @@ def test_a_full_buffer_is_reported_not_waited_on() -> None:
     assert writer.closed
 
 
+def test_a_result_that_cannot_be_pickled_is_dropped_alone() -> None:
+    reader, writer = CTX.Pipe(duplex=False)
+    sender = ResultSender(writer, maxsize=4)
+    try:
+        assert sender.put(lambda: None, timeout=1.0)  # no pickle for a lambda
+        assert sender.put(np.arange(3), timeout=1.0)
+        assert reader.poll(30)
+        assert reader.recv().tolist() == [0, 1, 2]
+    finally:
+        sender.close(timeout=5.0)
+        reader.close()
+
+
 def _hold(lock: Any) -> None:
     lock.acquire()  # and exit without releasing it
 

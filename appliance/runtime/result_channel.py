@@ -21,6 +21,7 @@ import multiprocessing.connection as mpc
 import queue
 import threading
 import time
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 log = logging.getLogger("ogiflow")
@@ -73,7 +74,12 @@ class ResultSender:
     def _run(self) -> None:
         while (item := self._buffer.get()) is not _STOP:
             try:
-                self._conn.send(item)
+                data = ForkingPickler.dumps(item)
+            except Exception:  # this result only; the pipe is untouched
+                log.exception("a result could not be pickled; dropped")
+                continue
+            try:
+                self._conn.send_bytes(data)
             except (OSError, ValueError):  # the daemon closed its end: it is stopping
                 return
 
@@ -123,10 +129,15 @@ class ResultReceiver:
         items = []
         for reader in mpc.wait(readers, timeout):
             try:
-                items.append(reader.recv())  # type: ignore[union-attr]
+                data = reader.recv_bytes()  # type: ignore[union-attr]
             except (EOFError, OSError):
                 # The worker ended (a torn last result reads as end of file, too).
                 self._drop(reader)
+                continue
+            try:
+                items.append(ForkingPickler.loads(data))
+            except Exception:  # this result only: the next one starts at a message boundary
+                log.exception("a result could not be unpickled; dropped")
         return items
 
     def close(self) -> None:
