@@ -230,6 +230,38 @@ def test_worker_killed_while_writing_a_result_is_replaced(scene_cache: Path,
     assert c.frames_lost == {"left": 0, "right": 0} and c.frame_queue_drops == 0
 
 
+def test_worker_killed_inside_the_rings_lock_is_replaced(scene_cache: Path,
+                                                          tmp_path: Path) -> None:
+    """The worker dies while it holds the lock the ring's readers share (the test takes the
+    lock and never gives it back, as a worker killed inside ``take_newest`` would): the
+    daemon gives the lock back, and the new worker's results come."""
+    app = make_app(scene_cache, tmp_path / "rec", ("processing.enabled", True),
+                   ("processing.workers", 1))
+    c = app.counters
+    seen: dict[str, float] = {}
+
+    def scenario() -> None:
+        wait_for(app, lambda: c.results >= 2, "first results (numba loading)", 240)
+        (pipe,) = app.pool._results._readers
+        assert app.ring.reader_lock.acquire(timeout=10)  # never released here
+        os.kill(app.pool.workers[0].pid, signal.SIGKILL)
+        t_kill = time.monotonic()
+        wait_for(app, lambda: c.worker_restarts == 1, "a new worker")
+        wait_for(app, lambda: pipe not in app.pool._results._readers,
+                 "the dead worker's pipe closed")
+        before = c.results
+        wait_for(app, lambda: c.results >= before + 2, "results from the new worker", 240)
+        seen["resume_s"] = time.monotonic() - t_kill
+
+    assert run_with(app, scenario)["code"] == 0
+    print(f"worker SIGKILL inside the ring's lock: processing resumed after "
+          f"{seen['resume_s']:.1f} s; camera frames lost {c.frames_lost}")
+    assert c.frames_lost == {"left": 0, "right": 0}
+    # The lock works as a lock again: free now, taken once, given back once.
+    assert app.ring.reader_lock.acquire(timeout=5)
+    app.ring.reader_lock.release()
+
+
 def test_wall_clock_step_does_not_touch_pairing(scene_cache: Path, tmp_path: Path,
                                                 monkeypatch: pytest.MonkeyPatch) -> None:
     """The wall clock jumps an hour ahead mid-run: stamps and pairs stay on monotonic time,

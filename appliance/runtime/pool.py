@@ -141,7 +141,8 @@ class WorkerPool:
         self._done.set()
         if self._thread is not None:
             self._thread.join(timeout=1.0)
-        self._results.close()
+        if self._thread is None or not self._thread.is_alive():
+            self._results.close()  # else the thread still reads them; they go with the process
 
     def _start_worker(self, i: int) -> Any:
         n = self.cfg.processing.workers
