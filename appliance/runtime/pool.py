@@ -2,8 +2,9 @@
 
 The daemon owns one pool per run. Pairs enter through :attr:`WorkerPool.ring` (the pairing
 thread writes, never waits); the workers take the newest consecutive windows; one thread takes
-their results from a small queue and hands each to the daemon's handler. A worker that dies
-(OOM killer, a crash in native code) is replaced by :meth:`WorkerPool.supervise`.
+their results from a pipe per worker (:mod:`appliance.runtime.result_channel`) and hands each
+to the daemon's handler. A worker that dies (OOM killer, a crash in native code) is replaced by
+:meth:`WorkerPool.supervise`, with a new pipe and the shared locks it may have held given back.
 """
 
 from __future__ import annotations
@@ -132,7 +133,7 @@ class WorkerPool:
 
     def stop(self) -> None:
         """Stop the workers (terminate those that do not stop within 2 s), then the results
-        thread once it has taken what is queued."""
+        thread once it has taken what the pipes hold."""
         self._stop.set()
         for p in self._workers:
             p.join(timeout=2.0)
