@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from appliance.runtime.result_channel import ResultReceiver, ResultSender, free_if_orphaned
+from appliance.runtime.pool import free_if_orphaned
+from appliance.runtime.result_channel import ResultReceiver, ResultSender
 
 CTX = multiprocessing.get_context("spawn")
 BIG = 3_000_000  # bytes: far more than a pipe holds (64 KiB), as a result with full fields
@@ -30,10 +31,9 @@ def _send(conn: Any, sizes: list[int], sent: Any) -> None:
 
 def _start(receiver: ResultReceiver, sizes: list[int]) -> tuple[Any, Any]:
     sent = CTX.Event()
-    pipe = receiver.open()
-    proc = CTX.Process(target=_send, args=(pipe, sizes, sent), daemon=True)
-    proc.start()
-    receiver.started(pipe)
+    with receiver.pipe() as pipe:
+        proc = CTX.Process(target=_send, args=(pipe, sizes, sent), daemon=True)
+        proc.start()
     return proc, sent
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
 from appliance.runtime.keepup import peak_rss_mb
-from appliance.runtime.result_channel import ResultReceiver, free_if_orphaned
+from appliance.runtime.result_channel import ResultReceiver
 from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import create_shift_table
 from appliance.runtime.worker_result import WorkerResult
@@ -31,7 +31,7 @@ from processing.chain.driver import ChainParameters, StereoGeometry
 log = logging.getLogger("ogiflow")
 
 #: Results in flight from the workers to the daemon, all workers together (see
-#: :meth:`WorkerPool.start`).
+#: :meth:`WorkerPool._start_worker`).
 RESULTS_QUEUE_SIZE = 8
 #: How long a lock a worker shares stays taken after that worker died before it is taken to be
 #: the dead worker's (its critical sections last microseconds).
@@ -92,10 +92,6 @@ class WorkerPool:
         self.ring = PairRing.create(self.cfg.ring.capacity, (h, w), np.uint16)
         stack.callback(self._release_ring)
         self._mp = mp.get_context("spawn")
-        # About half a second of results: each carries 0.1-0.3 MB (2.6 MB with the full
-        # fields the daemon asked for), and what the daemon has not read is held in the
-        # workers' memory (64 made 130-160 MB steps when the daemon was starved of CPU). A
-        # result not taken within 1 s is counted as a skipped triple.
         self._results = ResultReceiver(self._mp)
         self._stop = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
@@ -147,16 +143,18 @@ class WorkerPool:
 
     def _start_worker(self, i: int) -> Any:
         n = self.cfg.processing.workers
-        pipe = self._results.open()
-        p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
-                             args=(i, self.ring.handle(), (pipe, max(1, RESULTS_QUEUE_SIZE // n)),
-                                   self._stop, self.geometry, self.params, n, self.emission,
-                                   self.sonic_k, self._shift_table, self.fields_wanted),
-                             daemon=True)
-        try:
+        # About half a second of results: each carries 0.1-0.3 MB (2.6 MB with the full
+        # fields the daemon asked for), and what the daemon has not read is held in the
+        # workers' memory (64 made 130-160 MB steps when the daemon was starved of CPU). A
+        # result not taken within 1 s is counted as a skipped triple.
+        buffered = max(1, RESULTS_QUEUE_SIZE // n)
+        with self._results.pipe() as pipe:
+            p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
+                                 args=(i, self.ring.handle(), (pipe, buffered), self._stop,
+                                       self.geometry, self.params, n, self.emission,
+                                       self.sonic_k, self._shift_table, self.fields_wanted),
+                                 daemon=True)
             p.start()
-        finally:
-            self._results.started(pipe)
         return p
 
     def _results_loop(self) -> None:
@@ -173,3 +171,18 @@ class WorkerPool:
     def _release_ring(self) -> None:
         self.ring.close()
         self.ring.unlink()
+
+
+def free_if_orphaned(lock: Any, wait_s: float) -> bool:
+    """Give back ``lock`` (a ``multiprocessing.Lock``) if a dead process may hold it.
+
+    A worker's critical sections last microseconds, so a lock that stays taken for
+    ``wait_s`` after a worker died was held by that worker: it is released here, or every
+    other worker would wait on it for ever. Returns True if it was released so.
+    """
+    if lock.acquire(timeout=wait_s):
+        lock.release()
+        return False
+    log.error("a lock held by the dead worker released")
+    lock.release()
+    return True

@@ -11,16 +11,18 @@ worker was replaced).
 Here each worker writes to a pipe of its own (:class:`ResultSender`), and the daemon closes
 its copy of the write end once the worker holds it, so a dead worker's pipe - torn message or
 not - reads as end of file and is dropped (:class:`ResultReceiver`); its replacement gets a new
-pipe. :func:`free_if_orphaned` gives back a lock a dead worker may have held.
+pipe.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import multiprocessing.connection as mpc
 import queue
 import threading
 import time
+from collections.abc import Iterator
 from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
@@ -97,21 +99,19 @@ class ResultReceiver:
         self._ctx = ctx
         self._lock = threading.Lock()
         self._readers: list[Any] = []  # read ends, one per worker not known to have ended
-        self._pending: list[Any] = []  # write ends until their worker holds them
 
-    def open(self) -> Any:
-        """A new pipe; returns its write end for one worker (then call :meth:`started`)."""
+    @contextlib.contextmanager
+    def pipe(self) -> Iterator[Any]:
+        """A new pipe: yields its write end, to start one worker process with inside the
+        block; on leaving it the daemon's copy is closed, so that the pipe reads as end of
+        file once the worker is gone."""
         reader, writer = self._ctx.Pipe(duplex=False)
         with self._lock:
             self._readers.append(reader)
-        self._pending.append(writer)
-        return writer
-
-    def started(self, writer: Any) -> None:
-        """The worker process holds ``writer`` now: close the daemon's copy, so that the pipe
-        reads as end of file once the worker is gone."""
-        self._pending.remove(writer)
-        writer.close()
+        try:
+            yield writer
+        finally:
+            writer.close()
 
     @property
     def open_pipes(self) -> int:
@@ -144,26 +144,11 @@ class ResultReceiver:
         """Close every pipe (after the workers have ended)."""
         with self._lock:
             readers, self._readers = self._readers, []
-        for conn in [*readers, *self._pending]:
+        for conn in readers:
             conn.close()
-        self._pending = []
 
     def _drop(self, reader: Any) -> None:
         with self._lock:
             self._readers = [r for r in self._readers if r is not reader]
         reader.close()
 
-
-def free_if_orphaned(lock: Any, wait_s: float) -> bool:
-    """Give back ``lock`` (a ``multiprocessing.Lock``) if a dead process may hold it.
-
-    A worker's critical sections last microseconds, so a lock that stays taken for
-    ``wait_s`` after a worker died was held by that worker: it is released here, or every
-    other worker would wait on it for ever. Returns True if it was released so.
-    """
-    if lock.acquire(timeout=wait_s):
-        lock.release()
-        return False
-    log.error("a lock held by the dead worker released")
-    lock.release()
-    return True

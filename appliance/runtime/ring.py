@@ -205,7 +205,7 @@ class PairRing:
     @property
     def reader_lock(self) -> Any:
         """The readers' lock (``multiprocessing.Lock``): the daemon gives it back if a reader
-        died holding it (:func:`appliance.runtime.result_channel.free_if_orphaned`)."""
+        died holding it (:func:`appliance.runtime.pool.free_if_orphaned`)."""
         return self._lock
 
     def handle(self) -> RingHandle:

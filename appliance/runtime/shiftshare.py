@@ -25,7 +25,7 @@ def create_shift_table(ctx: Any, slots: int = SLOTS) -> Any:
     """A shared table for :class:`SharedShiftMemo` (``ctx``: a multiprocessing context).
 
     Its lock is a plain (not re-entrant) lock, so that the daemon can give it back when a
-    worker died holding it (:func:`appliance.runtime.result_channel.free_if_orphaned`).
+    worker died holding it (:func:`appliance.runtime.pool.free_if_orphaned`).
     """
     return ctx.Array("d", [math.nan] * (slots * _FIELDS), lock=ctx.Lock())
 
