@@ -71,6 +71,8 @@ def _solver_bytes(shape: tuple[int, int], options: Mapping[str, Any], defaults: 
         shapes = shapes[:o["n_levels"]]
     total = 0.0
     for level, (h, w) in enumerate(shapes):
+        if level < o.get("finest_level", 0):
+            continue  # interpolated, not solved
         finest = level == 0
         warps = o.get("n_warps_finest", o["n_warps"]) if finest else o["n_warps"]
         inner = o.get("n_inner_finest", o["n_inner"]) if finest else o["n_inner"]

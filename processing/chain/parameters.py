@@ -27,12 +27,15 @@ WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_inner": 2, "n_sor": 8}
 FAR_WARM_FLOW_OPTIONS: Mapping[str, Any] = {"n_inner": 2, "n_sor": 8}
 #: Largest block side of ``ChainParameters.binning``, px (4: a 1280x960 camera as 320x240).
 MAX_BINNING = 4
-#: The disparity's options on a warm start. Its finest level runs one lagged iteration: there
-#: it moves d by 0.004 px and d' by 0.0001 px on average (the bench's plume,
-#: benchmarks/warm_level_updates.py), and the second one changed Table 3 by at most 0.07 for
-#: 8 % of the disparity's time (docs/performance.md, "Fewer passes on a warm start").
+#: The disparity's options on a warm start: the finest 6 levels, the finest of them not solved
+#: but interpolated from the next (``finest_level``). There a lagged iteration moved d by
+#: 0.004 px and d' by 0.0001 px on average (the bench's plume,
+#: benchmarks/warm_level_updates.py), and solving it cost a third of the disparity's time.
+#: Interpolated, Table 3 and the wide matrix read the same or better, the combined
+#: disturbances of the default and held-out matrices 0.4-0.5 point worse (docs/performance.md,
+#: "The disparity's finest level on a warm start").
 WARM_DISPARITY_OPTIONS: Mapping[str, Any] = {"n_levels": 6, "n_warps": 1, "n_inner": 2,
-                                              "n_inner_finest": 1, "n_sor": 8}
+                                              "n_sor": 8, "finest_level": 1}
 
 
 @dataclass(frozen=True)

@@ -145,6 +145,7 @@ def joint_disparity(
     n_sor: int = 10,
     omega: float = 1.95,
     presmooth_sigma: float = 0.6,
+    finest_level: int = 0,
     constant_mode: bool = True,
     right_temporal_weight: float = 1.0,
     blanked: tuple[np.ndarray, np.ndarray] | None = None,
@@ -197,6 +198,13 @@ def joint_disparity(
         Laplacian-dominated system whose optimal SOR factor is close to 2.
     presmooth_sigma : float
         Gaussian pre-smoothing of the four images in px (0 disables).
+    finest_level : int
+        The finest pyramid level solved, 0 (default) for the images' own size. Above 0 the
+        fields of that level are interpolated to the images' size (bilinear, values scaled
+        to its px) without solving the finer levels: d and d' are smooth fields (gamma1,
+        gamma2), and on a warm start the finest level moved them by hundredths of a pixel
+        at a third of the solver's time (docs/performance.md). ``n_warps_finest`` and
+        ``n_inner_finest`` still mean level 0, so they do not apply then.
     constant_mode : bool
         After every SOR solve, shift d and d' by the constants that minimise the
         linearised energy (:func:`constant_mode_step`; beyond the paper: it changes only
@@ -250,10 +258,16 @@ def joint_disparity(
     shapes, pyrs = variational.build_pyramids(
         images, pyramid_factor=pyramid_factor, min_level_size=min_level_size,
         presmooth_sigma=presmooth_sigma, n_levels=n_levels, cache=pyramid_cache)
+    if isinstance(finest_level, bool) or not isinstance(finest_level, int) \
+            or not 0 <= finest_level < len(shapes):
+        raise ValueError(f"finest_level must be an integer in [0, {len(shapes) - 1}] (the "
+                         f"pyramid's levels), got {finest_level!r}")
 
     d, dp = _initial_fields(images[0], shapes[-1], d0, init, initial_change)
 
     def solve_level(level: int, fields: variational.Fields) -> variational.Fields:
+        if level < finest_level:
+            return fields  # already interpolated to this level by coarse_to_fine
         lshape = shapes[level]
         wl = w_full if lshape == shape else pyramid.resize_field(w_full, lshape, is_motion=True)
         u = np.ascontiguousarray(wl[..., 0])
