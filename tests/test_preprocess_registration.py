@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from processing.preprocess import registration, shift_refinement
 from processing.preprocess.registration import estimate_shift, register_to_reference
 from processing.preprocess.translation import warp_translation
 
@@ -100,3 +101,21 @@ def test_bad_input_raises(ref: np.ndarray, mov: np.ndarray, match: str) -> None:
 def test_bad_shift_raises() -> None:
     with pytest.raises(ValueError, match="finite"):
         warp_translation(np.zeros((20, 20), np.float32), (np.nan, 0.0))
+
+
+def test_a_refinement_leaving_the_plausible_shifts_stops_there_not_converged() -> None:
+    """From a start within ``give_up`` px, the refinement of a true 3 px shift stops as
+    soon as it leaves that disc (a camera does not shake that far: the motion is the gas's
+    or an object's), not converged; without the bound it converges to the shift."""
+    ref = _blob_scene(0.0, 0.0)
+    mov = _blob_scene(3.0, 0.0)
+    levels, _start = registration._levels_and_start(ref, mov, border=8, smooth_sigma=1.0)
+    kw = {"robust_scale": 2.0, "max_iter": 20, "tol": 5e-3}
+    free, converged, _ = shift_refinement.refine(levels, (0.0, 0.0), **kw)
+    assert converged and abs(free[0] - 3.0) < 0.05
+    bounded, converged, _ = shift_refinement.refine(levels, (0.0, 0.0), give_up=1.5, **kw)
+    assert not converged
+    assert 1.5 < float(np.hypot(*bounded)) < 2.9
+    # the caller rejects such a shift either way: beyond max_shift it is not applied
+    shift, converged = registration.estimate_shift_checked(ref, mov, max_shift=1.5)
+    assert not (converged and float(np.hypot(*shift)) <= 1.5)

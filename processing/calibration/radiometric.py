@@ -34,6 +34,9 @@ OGI_BAND_M: tuple[float, float] = (3.2e-6, 3.4e-6)
 #: Gauss-Legendre nodes used for the band integral; the integrand is smooth over a band of a
 #: few 100 nm, and 32 nodes reach machine precision (checked against scipy.integrate.quad).
 _GL_NODES = 32
+# Computed once: the nodes cost an eigenvalue problem, ten times the integral itself (and
+# the emission rate integrates the gas's band radiance on every rate).
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(_GL_NODES)
 
 
 def planck_spectral_radiance(wavelength_m: np.ndarray, temperature_k: np.ndarray) -> np.ndarray:
@@ -86,10 +89,9 @@ def band_radiance(
         raise ValueError(f"band must satisfy 0 < low < high, got {band_m}")
     if not 0 < emissivity <= 1:
         raise ValueError(f"emissivity must be in (0, 1], got {emissivity}")
-    nodes, weights = np.polynomial.legendre.leggauss(_GL_NODES)
-    lam = 0.5 * (hi - lo) * nodes + 0.5 * (hi + lo)
+    lam = 0.5 * (hi - lo) * _GL_X + 0.5 * (hi + lo)
     spectral = planck_spectral_radiance(lam, t[..., None])
-    return emissivity * 0.5 * (hi - lo) * (spectral @ weights)
+    return emissivity * 0.5 * (hi - lo) * (spectral @ _GL_W)
 
 
 def celsius_to_kelvin(t_c: float | np.ndarray) -> np.ndarray:

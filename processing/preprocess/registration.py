@@ -107,7 +107,8 @@ def estimate_shift_checked(
         Cauchy weight scale in multiples of the robust (MAD) residual spread; residuals far
         above it (gas, moving objects) get weights ~ (scale / residual)^2.
     max_shift : float or None
-        Largest plausible shift in px (the camera's jitter). A refinement that has not
+        Largest plausible shift in px (the camera's jitter). A refinement from a start
+        within it stops, not converged, as soon as it leaves it; one that has not
         converged but stays within it goes on for another ``max_iter`` steps; when the
         phase-correlation start lies beyond it, or the refinement converged beyond it, a
         second refinement starts from zero and the converged one with the smaller residual
@@ -133,8 +134,14 @@ def estimate_shift_checked(
                                       smooth_sigma=smooth_sigma)
 
     def refine(from_: tuple[float, float]) -> tuple[tuple[float, float], bool, float]:
+        # From a plausible start, a refinement that leaves the disc of plausible shifts is
+        # following the gas or an object, not the camera: it stops there, as one that
+        # drifted out without converging would after all its iterations (measured on the
+        # bench's plume, where every shift is rejected: 0.8 ms of a warm triple).
+        give_up = (max_shift if max_shift is not None and np.hypot(*from_) <= max_shift
+                   else np.inf)
         return shift_refinement.refine(levels, from_, robust_scale=robust_scale,
-                                       max_iter=max_iter, tol=tol)
+                                       max_iter=max_iter, tol=tol, give_up=give_up)
 
     return _plausible_shift(refine, start, max_shift)
 

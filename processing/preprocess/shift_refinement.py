@@ -76,8 +76,9 @@ def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float,
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                        border: int, dx: float, dy: float, robust_scale: float, max_iter: int,
-                       tol: float) -> tuple[float, float, bool, float]:
-    """The iterations of :func:`_gauss_newton` in compiled code: (dx, dy, converged, cost)."""
+                       tol: float, give_up: float) -> tuple[float, float, bool, float]:
+    """The iterations of :func:`_gauss_newton` in compiled code: (dx, dy, converged, cost);
+    not converged as soon as the shift leaves the disc of radius ``give_up`` px."""
     h, w = ref.shape
     resid = np.empty((h, w), np.float32)
     rows = np.empty((h, w), np.float32)
@@ -105,6 +106,8 @@ def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.
         dy += step_y
         if step_x * step_x + step_y * step_y < tol * tol:
             return dx, dy, True, c
+        if dx * dx + dy * dy > give_up * give_up:
+            return dx, dy, False, c
     # No convergence: a rigid shift does not explain the change (moving gas over a
     # featureless background, not camera jitter over a static scene).
     return dx, dy, False, c
@@ -157,12 +160,14 @@ def make_level(ref: np.ndarray, mov: np.ndarray, border: int) -> Level | None:
 
 
 def refine(levels: tuple[Level, ...], start: tuple[float, float], *, robust_scale: float,
-           max_iter: int, tol: float) -> tuple[tuple[float, float], bool, float]:
+           max_iter: int, tol: float, give_up: float = np.inf
+           ) -> tuple[tuple[float, float], bool, float]:
     """Coarse-to-fine robust Gauss-Newton refinement of the shift from ``start``.
 
-    ``levels`` run coarsest first, each half the size of the next; ``start`` and the result
-    are in full-resolution px, ``tol`` in each level's own px. A level that does not
-    converge ends the refinement (:mod:`processing.preprocess.registration`). Returns
+    ``levels`` run coarsest first, each half the size of the next; ``start``, the result
+    and ``give_up`` are in full-resolution px, ``tol`` in each level's own px. A level that
+    does not converge, or whose shift leaves the disc of radius ``give_up`` about zero,
+    ends the refinement, not converged (:mod:`processing.preprocess.registration`). Returns
     (shift, converged, cost), cost the Cauchy scale of the last level's residual.
     """
     shift, converged, cost = start, False, np.inf
@@ -170,7 +175,7 @@ def refine(levels: tuple[Level, ...], start: tuple[float, float], *, robust_scal
         f = 2.0 ** (len(levels) - 1 - k)  # full-resolution px per px of this level
         s, converged, cost = _gauss_newton(level, (shift[0] / f, shift[1] / f),
                                            robust_scale=robust_scale, max_iter=max_iter,
-                                           tol=tol)
+                                           tol=tol, give_up=give_up / f)
         shift = (s[0] * f, s[1] * f)
         if not converged:
             break
@@ -178,7 +183,8 @@ def refine(levels: tuple[Level, ...], start: tuple[float, float], *, robust_scal
 
 
 def _gauss_newton(level: Level, start: tuple[float, float], *, robust_scale: float,
-                  max_iter: int, tol: float) -> tuple[tuple[float, float], bool, float]:
+                  max_iter: int, tol: float, give_up: float
+                  ) -> tuple[tuple[float, float], bool, float]:
     """Robust Gauss-Newton refinement of the shift from ``start`` on one level (its px).
 
     Returns (shift, converged, cost), cost the Cauchy scale of the last residual (the
@@ -186,5 +192,5 @@ def _gauss_newton(level: Level, start: tuple[float, float], *, robust_scale: flo
     """
     dx, dy, converged, cost = _gauss_newton_loop(
         level.ref, level.mov, level.gx, level.gy, level.border, float(start[0]),
-        float(start[1]), float(robust_scale), int(max_iter), float(tol))
+        float(start[1]), float(robust_scale), int(max_iter), float(tol), float(give_up))
     return (float(dx), float(dy)), bool(converged), float(cost)
