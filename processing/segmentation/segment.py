@@ -51,8 +51,10 @@ from processing.validation import as_float_image, check_positive
 #: Smallest accepted image side in pixels.
 MIN_SEGMENT_SIZE = 8
 
-def _activity(diff: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-    """|I_diff - 0.5|, |w| and their robust spreads s_I, s_w over the frame.
+def _activity(diff: np.ndarray, flow: np.ndarray, known: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """|I_diff - 0.5|, |w| and their robust spreads s_I, s_w over the frame (s_w over the
+    pixels ``known`` above 0.5, where the flow was measured, when given).
 
     The spreads are mean absolute values (x 1.2533, the Gaussian mean-absolute to standard
     deviation factor): cheaper than medians and only used to put the two features on one
@@ -60,7 +62,11 @@ def _activity(diff: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """
     a = np.abs(diff - np.float32(0.5))
     m = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
-    return a, m, robust_spread(a), robust_spread(m)
+    if known is None:
+        return a, m, robust_spread(a), robust_spread(m)
+    inside = known > 0.5
+    s_w = robust_spread(m[inside]) if inside.any() else robust_spread(m)
+    return a, m, robust_spread(a), s_w
 
 
 def robust_spread(magnitude: np.ndarray) -> float:
@@ -69,7 +75,8 @@ def robust_spread(magnitude: np.ndarray) -> float:
     return 1.2533 * float(magnitude.mean()) + 1e-6
 
 
-def initial_phi(diff: np.ndarray, flow: np.ndarray, *, threshold: float = 2.0) -> np.ndarray:
+def initial_phi(diff: np.ndarray, flow: np.ndarray, *, threshold: float = 2.0,
+                known: np.ndarray | None = None) -> np.ndarray:
     """Initial embedding function (module docstring: thresholds, checkerboard fallback).
 
     Parameters
@@ -80,13 +87,15 @@ def initial_phi(diff: np.ndarray, flow: np.ndarray, *, threshold: float = 2.0) -
         Optical flow (u, v) in px/frame.
     threshold : float
         Threshold on the smoothed normalised contrast.
+    known : ndarray, shape (H, W), float, optional
+        Where the flow was measured (:func:`segment_gas`'s ``flow_known``).
 
     Returns
     -------
     ndarray, shape (H, W), float32
         +1 (gas) / -1 (background), lightly smoothed.
     """
-    a, m, s_i, s_w = _activity(diff, flow)
+    a, m, s_i, s_w = _activity(diff, flow, known)
     score = np.maximum(a / s_i, m / s_w).astype(np.float32)
     score = cv2.GaussianBlur(score, (0, 0), 2.0)
     mask = score > threshold
@@ -135,6 +144,7 @@ def segment_gas(
     force_clip: float = 20.0,
     init_threshold: float = 2.0,
     min_activity_ratio: float = 1.5,
+    flow_known: np.ndarray | None = None,
 ) -> Segmentation:
     """Segment the gas region of a differential image with its optical flow (Eq. 9).
 
@@ -165,6 +175,11 @@ def segment_gas(
     min_activity_ratio : float
         Gas accepted only if its mean activity is at least this multiple of the
         background's (module docstring); 0 disables the check.
+    flow_known : ndarray, shape (H, W), bool or float in [0, 1], optional
+        Where ``flow`` was measured (the chain's active region). The motion features u, v
+        count only there: their region models are estimated from those pixels, their
+        log-likelihood ratios act only there, and the flow's robust spread and the
+        regions' activities (which side is gas) are taken there. None: everywhere.
 
     Returns
     -------
@@ -191,7 +206,12 @@ def segment_gas(
     if int(sweeps_per_update) < 1:
         raise ValueError(f"sweeps_per_update must be >= 1, got {sweeps_per_update}")
 
-    features_full = np.stack([d, fl[..., 0], fl[..., 1]])
+    if flow_known is not None and np.shape(flow_known) != d.shape:
+        raise ValueError(f"flow_known must have shape {d.shape}, got {np.shape(flow_known)}")
+    # a fourth plane, so that the pyramid carries the measured share of each coarse pixel
+    known = (np.ones(d.shape, np.float32) if flow_known is None
+             else np.asarray(flow_known, np.float32))
+    features_full = np.stack([d, fl[..., 0], fl[..., 1], known])
     pyramid = [features_full]
     for _ in range(int(n_levels) - 1):
         prev = pyramid[-1]
@@ -202,23 +222,28 @@ def segment_gas(
     pyramid.reverse()  # coarsest first
 
     coarse = pyramid[0]
-    phi = initial_phi(coarse[0], np.dstack([coarse[1], coarse[2]]), threshold=init_threshold)
+    phi = initial_phi(coarse[0], np.dstack([coarse[1], coarse[2]]), threshold=init_threshold,
+                      known=None if flow_known is None else coarse[3])
     for level, feats in enumerate(pyramid):
         if phi.shape != feats.shape[1:]:
             phi = cv2.resize(phi, (feats.shape[2], feats.shape[1]), interpolation=cv2.INTER_LINEAR)
         phi = np.ascontiguousarray(phi, dtype=np.float32)
-        descend(feats, phi, nu, dt, eps, force_clip,
+        descend(np.ascontiguousarray(feats[:3]), phi, np.ascontiguousarray(feats[3]), nu, dt,
+                eps, force_clip,
                 int(iterations[min(level, len(iterations) - 1)]), int(sweeps_per_update))
 
     # Which side is gas: larger mean activity (module docstring).
-    a, m, s_i, s_w = _activity(d, fl)
+    a, m, s_i, s_w = _activity(d, fl, None if flow_known is None else known)
     act = a / s_i + m / s_w
     pos = phi > 0
     n_pos = int(pos.sum())
     if n_pos == 0 or n_pos == pos.size:
         return Segmentation(np.zeros(d.shape, bool), _all_background(phi), 1.0)
-    act_pos = float(act[pos].mean())
-    act_neg = float(act[~pos].mean())
+    inside = np.ones(d.shape, bool) if flow_known is None else known > 0.5
+    if not (pos & inside).any() or not (~pos & inside).any():
+        inside = np.ones(d.shape, bool)
+    act_pos = float(act[pos & inside].mean())
+    act_neg = float(act[~pos & inside].mean())
     if act_neg > act_pos:
         phi = -phi
         pos = ~pos
