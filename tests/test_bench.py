@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from appliance import cli
+from appliance.config.load import load_config
 from appliance.evaluation import bench_input
 from appliance.evaluation import benchmark as bm
 from processing.chain import ChainParameters
@@ -200,3 +201,12 @@ def test_the_pairs_per_s_input_starts_cold_as_often_as_the_daemon(stride: int) -
 
     assert cold_share(bm.THROUGHPUT_MIN_FRAMES) == pytest.approx(1 / cold_every, rel=0.05)
     assert cold_share(16) == pytest.approx(stride / 14, rel=0.05)
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "benchmarks" / "configs").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_every_benchmark_configuration_loads_and_gives_chain_parameters(path: Path) -> None:
+    """The configurations the docs' figures name are valid as `ogiflow run --config` takes
+    them: no misspelt key, parameters the chain accepts."""
+    params = load_config(path).processing.chain_parameters()
+    assert isinstance(params, ChainParameters)

@@ -141,9 +141,10 @@ def estimate_shift_checked(
         # From a plausible start, a refinement that has gone a pixel beyond the plausible
         # shifts is following the gas or an object, not the camera: it stops there, as one
         # that drifted out without converging would after all its iterations (measured on
-        # the bench's plume, where every shift is rejected: 0.4 ms of a warm triple). At
-        # 0.5 px beyond, three more shifts of the default matrix's sky scenes under 0.2 px
-        # of jitter were rejected (the refinement came back); at a pixel, none.
+        # the bench's plume, where every shift is rejected: 0.2-0.4 ms of a warm triple).
+        # At the bound itself three more shifts of the default matrix's sky scenes under
+        # 0.2 px of jitter were rejected (the refinement came back), two at 0.5 px beyond,
+        # none at a pixel.
         give_up = (max_shift + GIVE_UP_BEYOND_PX
                    if max_shift is not None and np.hypot(*from_) <= max_shift else np.inf)
         return shift_refinement.refine(levels, from_, robust_scale=robust_scale,

@@ -145,6 +145,7 @@ def _region_moments(
     nk = np.float32(0.0)
     inv_pi = np.float32(1.0 / np.pi)
     inv_eps = np.float32(1.0 / eps)
+    everywhere = known.shape[0] == 1  # the 1 x 1 sentinel (segment.py): every pixel known
     for i in range(0, h, stride):
         a0 = np.float32(0.0)
         a1 = np.float32(0.0)
@@ -163,7 +164,7 @@ def _region_moments(
         ks = np.float32(0.0)
         for j in range(0, w, stride):
             hv = np.float32(0.5) + np.float32(_atan(phi[i, j] * inv_eps)) * inv_pi
-            kv = known[i, j]
+            kv = np.float32(1.0) if everywhere else known[i, j]
             hw = hv * kv
             x0 = features[0, i, j]
             x1 = features[1, i, j]
@@ -233,6 +234,7 @@ def _apply_force(
     """
     nf, h, w = features.shape
     clip = np.float32(force_clip)
+    everywhere = known.shape[0] == 1  # the 1 x 1 sentinel (segment.py): every pixel known
     total = 0.0  # float64, summed as the constant always was
     for k in range(nf):
         total += cst[k]
@@ -246,6 +248,10 @@ def _apply_force(
             ab = np.float32(a_b[k])
             c = np.float32(cst[k])
             if k == 0:
+                for j in range(w):
+                    x = features[k, i, j]
+                    force[i, j] += ab * (x - mb) * (x - mb) - ag * (x - mg) * (x - mg)
+            elif everywhere:
                 for j in range(w):
                     x = features[k, i, j]
                     force[i, j] += ab * (x - mb) * (x - mb) - ag * (x - mg) * (x - mg)
@@ -269,9 +275,10 @@ def region_force(features: np.ndarray, phi: np.ndarray, known: np.ndarray, eps: 
         I_diff, u, v.
     phi : ndarray, shape (H, W), float32
         Embedding function (the region weights are H_eps(phi) and 1 - H_eps(phi)).
-    known : ndarray, shape (H, W), float32
+    known : ndarray, shape (H, W) or (1, 1), float32
         Measured share of each pixel's flow in [0, 1]: u and v count only as far as they
-        were measured (the models' moments and the ratios), I_diff everywhere.
+        were measured (the models' moments and the ratios), I_diff everywhere; a 1 x 1
+        array means every pixel is measured.
     eps : float
         Heaviside width.
     force_clip : float

@@ -50,6 +50,9 @@ from processing.validation import as_float_image, check_positive
 
 #: Smallest accepted image side in pixels.
 MIN_SEGMENT_SIZE = 8
+#: ``known`` of the level-set kernels when the flow was measured everywhere (a 1 x 1 array
+#: cannot be a level of an image of at least MIN_SEGMENT_SIZE px).
+_EVERYWHERE = np.ones((1, 1), np.float32)
 
 def _activity(diff: np.ndarray, flow: np.ndarray, known: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -208,11 +211,12 @@ def segment_gas(
 
     if flow_known is not None and np.shape(flow_known) != d.shape:
         raise ValueError(f"flow_known must have shape {d.shape}, got {np.shape(flow_known)}")
-    # a fourth plane, so that the pyramid carries the measured share of each coarse pixel
-    known = (np.ones(d.shape, np.float32) if flow_known is None
-             else np.asarray(flow_known, np.float32))
-    features_full = np.stack([d, fl[..., 0], fl[..., 1], known])
-    pyramid = [features_full]
+    # With flow_known, a fourth plane: the pyramid then carries the measured share of each
+    # coarse pixel. Without, the kernels take a 1 x 1 sentinel (no plane to read).
+    planes = [d, fl[..., 0], fl[..., 1]]
+    if flow_known is not None:
+        planes.append(np.asarray(flow_known, np.float32))
+    pyramid = [np.stack(planes)]
     for _ in range(int(n_levels) - 1):
         prev = pyramid[-1]
         if min(prev.shape[1:]) < 2 * MIN_SEGMENT_SIZE:
@@ -228,18 +232,19 @@ def segment_gas(
         if phi.shape != feats.shape[1:]:
             phi = cv2.resize(phi, (feats.shape[2], feats.shape[1]), interpolation=cv2.INTER_LINEAR)
         phi = np.ascontiguousarray(phi, dtype=np.float32)
-        descend(np.ascontiguousarray(feats[:3]), phi, np.ascontiguousarray(feats[3]), nu, dt,
-                eps, force_clip,
+        known = _EVERYWHERE if flow_known is None else np.ascontiguousarray(feats[3])
+        descend(np.ascontiguousarray(feats[:3]), phi, known, nu, dt, eps, force_clip,
                 int(iterations[min(level, len(iterations) - 1)]), int(sweeps_per_update))
 
     # Which side is gas: larger mean activity (module docstring).
-    a, m, s_i, s_w = _activity(d, fl, None if flow_known is None else known)
+    full_known = None if flow_known is None else pyramid[-1][3]
+    a, m, s_i, s_w = _activity(d, fl, full_known)
     act = a / s_i + m / s_w
     pos = phi > 0
     n_pos = int(pos.sum())
     if n_pos == 0 or n_pos == pos.size:
         return Segmentation(np.zeros(d.shape, bool), _all_background(phi), 1.0)
-    inside = np.ones(d.shape, bool) if flow_known is None else known > 0.5
+    inside = np.ones(d.shape, bool) if full_known is None else full_known > 0.5
     if not (pos & inside).any() or not (~pos & inside).any():
         inside = np.ones(d.shape, bool)
     act_pos = float(act[pos & inside].mean())
