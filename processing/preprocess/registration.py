@@ -111,12 +111,11 @@ def estimate_shift_checked(
         above it (gas, moving objects) get weights ~ (scale / residual)^2.
     max_shift : float or None
         Largest plausible shift in px (the camera's jitter). A refinement from a start
-        within it stops, not converged, once it is :data:`GIVE_UP_BEYOND_PX` beyond it;
-        one that has not
-        converged but stays within it goes on for another ``max_iter`` steps; when the
-        phase-correlation start lies beyond it, or the refinement converged beyond it, a
-        second refinement starts from zero and the converged one with the smaller residual
-        is returned (see the comments in the code). None: no bound.
+        within it stops, not converged, once it is :data:`GIVE_UP_BEYOND_PX` beyond it; one
+        that has not converged but stays within it goes on for another ``max_iter`` steps;
+        when the phase-correlation start lies beyond it, or the refinement converged beyond
+        it, a second refinement starts from zero and the converged one with the smaller
+        residual is returned (see the comments in the code). None: no bound.
 
     Returns
     -------

@@ -247,11 +247,7 @@ def _apply_force(
             ag = np.float32(a_g[k])
             ab = np.float32(a_b[k])
             c = np.float32(cst[k])
-            if k == 0:
-                for j in range(w):
-                    x = features[k, i, j]
-                    force[i, j] += ab * (x - mb) * (x - mb) - ag * (x - mg) * (x - mg)
-            elif everywhere:
+            if k == 0 or everywhere:
                 for j in range(w):
                     x = features[k, i, j]
                     force[i, j] += ab * (x - mb) * (x - mb) - ag * (x - mg) * (x - mg)
@@ -313,7 +309,7 @@ def descend(features: np.ndarray, phi: np.ndarray, known: np.ndarray, nu: float,
             eps: float, force_clip: float, n_updates: int, sweeps_per_update: int) -> None:
     """``n_updates`` times: re-estimate the region models (:func:`region_force`), then
     ``sweeps_per_update`` sweeps of phi (:func:`chan_vese_sweeps`); phi (H, W) in place,
-    ``features`` (3, H, W) and ``known`` (H, W) as in :func:`region_force`."""
+    ``features`` (3, H, W) and ``known`` (H, W) or (1, 1) as in :func:`region_force`."""
     force = np.empty_like(phi)
     for _ in range(n_updates):
         region_force(features, phi, known, eps, force_clip, force)
