@@ -11,6 +11,7 @@ from processing.preprocess.depth_gate import (
     MIN_VOTES,
     DepthGate,
     _local_majority,
+    _sgbm_around,
     apply_gate,
     out_of_band_motion,
     too_few_votes,
@@ -66,6 +67,39 @@ def test_object_touching_gas_is_gated_and_the_gas_kept() -> None:
     assert gate.left[only_obj].mean() > 0.8  # measured 0.86 (the rest: beside the gas)
     assert gate.left[only_gas].mean() < 0.05
     assert gate.fraction < 0.1
+
+
+def test_sgbm_matches_only_around_the_voting_pixels() -> None:
+    # An object (d = 20 px) in front of a textured wall (d = 4 px) that SGBM matches
+    # everywhere: SGBM around the object's box gives the whole image's verdict there and
+    # matches nothing farther than the margin.
+    obj, disk = _blob((120.0, 60.0), 20.0, seed=1)
+    wall, _ = _blob((160.0, 60.0), 1000.0, seed=4)
+    left, right = _views([(obj, 20.0), (wall / 3, 4.0)])
+    box = (40, 81, 100, 141)
+    d, valid = _sgbm_around(left, right, 48, box, 1)
+    whole_d, whole_valid = _sgbm_around(left, right, 48, (0, H, 0, W), 1)
+    assert not valid[:, :84].any() and not valid[:, 157:].any() and not valid[:24].any()
+    assert whole_valid[:, 160:].mean() > 0.5  # the wall: matched on the whole image
+    both = valid & whole_valid & disk
+    assert both.sum() > 0.5 * disk.sum()
+    assert np.median(np.abs(d[both] - whole_d[both])) < 0.5
+    assert abs(float(np.median(d[both])) - 20.0) < 1.0
+
+
+def test_a_still_view_pair_skips_semi_global_matching(monkeypatch: pytest.MonkeyPatch) -> None:
+    # Without active pixels (or with fewer than an object needs) nothing can vote out of
+    # band: the gate is empty without matching at all.
+    import processing.preprocess.depth_gate as gate_module
+
+    def no_sgbm(*args: object, **kwargs: object) -> None:
+        raise AssertionError("SGBM ran on a still pair")
+
+    monkeypatch.setattr(gate_module, "sgbm_disparity", no_sgbm)
+    rng = np.random.default_rng(3)
+    still = (0.5 + 0.002 * rng.standard_normal((H, W))).astype(np.float32)
+    gate = out_of_band_motion(still, still.copy(), d_min=BAND[0], d_max=BAND[1])
+    assert gate.fraction == 0.0 and not gate.left.any()
 
 
 def test_gas_alone_is_not_gated() -> None:
