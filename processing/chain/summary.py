@@ -165,7 +165,9 @@ def summarize_frame(
     # live worker's time, measured.)
     cand = np.flatnonzero(gas_mask & valid)
     v = velocity.reshape(-1, 3)[cand]
-    v = v[np.isfinite(v).all(axis=1)]
+    finite = np.isfinite(v)
+    if not finite.all():  # (the row test alone took 0.7 ms on a 19,000-pixel plume)
+        v = v[finite.all(axis=1)]
     n = len(v)
     n_gas = int(np.count_nonzero(gas_mask))
     if n == 0:
