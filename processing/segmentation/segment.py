@@ -54,10 +54,10 @@ MIN_SEGMENT_SIZE = 8
 #: cannot be a level of an image of at least MIN_SEGMENT_SIZE px).
 _EVERYWHERE = np.ones((1, 1), np.float32)
 
-def _activity(diff: np.ndarray, flow: np.ndarray, known: np.ndarray | None = None
+def _activity(diff: np.ndarray, flow: np.ndarray, measured: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """|I_diff - 0.5|, |w| and their robust spreads s_I, s_w over the frame (s_w over the
-    pixels ``known`` above 0.5, where the flow was measured, when given).
+    ``measured`` pixels (H, W) bool, where the flow was solved, when given and not empty).
 
     The spreads are mean absolute values (x 1.2533, the Gaussian mean-absolute to standard
     deviation factor): cheaper than medians and only used to put the two features on one
@@ -65,11 +65,18 @@ def _activity(diff: np.ndarray, flow: np.ndarray, known: np.ndarray | None = Non
     """
     a = np.abs(diff - np.float32(0.5))
     m = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
-    if known is None:
+    if measured is None or not measured.any():
         return a, m, robust_spread(a), robust_spread(m)
-    inside = known > 0.5
-    s_w = robust_spread(m[inside]) if inside.any() else robust_spread(m)
-    return a, m, robust_spread(a), s_w
+    return a, m, robust_spread(a), robust_spread(m[measured])
+
+
+def _side_activities(act: np.ndarray, pos: np.ndarray, measured: np.ndarray | None
+                     ) -> tuple[float, float]:
+    """Mean activity of the phi > 0 side ``pos`` and of the other, both (H, W); only over
+    the ``measured`` pixels (bool) when given and both sides have some there."""
+    if measured is not None and (pos & measured).any() and (~pos & measured).any():
+        return float(act[pos & measured].mean()), float(act[~pos & measured].mean())
+    return float(act[pos].mean()), float(act[~pos].mean())
 
 
 def robust_spread(magnitude: np.ndarray) -> float:
@@ -98,7 +105,7 @@ def initial_phi(diff: np.ndarray, flow: np.ndarray, *, threshold: float = 2.0,
     ndarray, shape (H, W), float32
         +1 (gas) / -1 (background), lightly smoothed.
     """
-    a, m, s_i, s_w = _activity(diff, flow, known)
+    a, m, s_i, s_w = _activity(diff, flow, None if known is None else known > 0.5)
     score = np.maximum(a / s_i, m / s_w).astype(np.float32)
     score = cv2.GaussianBlur(score, (0, 0), 2.0)
     mask = score > threshold
@@ -237,18 +244,14 @@ def segment_gas(
                 int(iterations[min(level, len(iterations) - 1)]), int(sweeps_per_update))
 
     # Which side is gas: larger mean activity (module docstring).
-    full_known = None if flow_known is None else pyramid[-1][3]
-    a, m, s_i, s_w = _activity(d, fl, full_known)
+    measured = None if flow_known is None else pyramid[-1][3] > 0.5
+    a, m, s_i, s_w = _activity(d, fl, measured)
     act = a / s_i + m / s_w
     pos = phi > 0
     n_pos = int(pos.sum())
     if n_pos == 0 or n_pos == pos.size:
         return Segmentation(np.zeros(d.shape, bool), _all_background(phi), 1.0)
-    inside = np.ones(d.shape, bool) if full_known is None else full_known > 0.5
-    if not (pos & inside).any() or not (~pos & inside).any():
-        inside = np.ones(d.shape, bool)
-    act_pos = float(act[pos & inside].mean())
-    act_neg = float(act[~pos & inside].mean())
+    act_pos, act_neg = _side_activities(act, pos, measured)
     if act_neg > act_pos:
         phi = -phi
         pos = ~pos
