@@ -92,3 +92,43 @@ def test_a_result_without_fields_is_a_tenth_of_the_bytes_to_send() -> None:
                           raw_left=np.zeros((240, 320), np.uint16), fields=fields)
         sizes[fields] = len(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     assert sizes[True] > 2.5e6 and sizes[False] < 0.1 * sizes[True], sizes
+
+
+def test_a_single_worker_that_falls_behind_skips_one_triple_at_a_time_and_stays_warm() -> None:
+    """Beyond half the ring behind, one worker takes the triple two frames on (one skipped)
+    and starts it from its previous triple; only beyond the ring's reach it jumps to the
+    newest window and starts cold."""
+    from appliance.evaluation.bench_input import blob_frames
+    from appliance.evaluation.bench_input import geometry as bench_geometry
+    from appliance.runtime.ring import PairRing
+    from appliance.runtime.workers import _Worker
+    from processing.chain import ChainParameters
+
+    frames = blob_frames(n_frames=24)
+    with PairRing.create(16, frames.left[0].shape) as ring:  # max_lag 8
+
+        def write(upto: int) -> None:
+            for i in range(ring.stats().written, upto + 1):
+                t = int(frames.times_s[i] * 1e9)
+                ring.write(frames.left[i], frames.right[i], pair_index=i, t_left_mono_ns=t,
+                           t_right_mono_ns=t, t_wall_ns=t)
+
+        worker = _Worker(0, ring, 1, bench_geometry(), ChainParameters(d0=20.0), None, None,
+                         None, None)
+
+        def step() -> tuple[tuple[int, ...], int, bool]:
+            window = worker.take()
+            assert window is not None
+            base, camera, left, right = window
+            worker.process(base, camera, left, right)
+            assert base.error is None, base.error
+            return base.pair_indices, base.skipped, base.warm
+
+        write(2)
+        assert step() == ((0, 1, 2), 0, False)
+        write(14)  # the next window in order (ending at 3) lags 11 > 8 behind
+        assert step() == ((2, 3, 4), 1, True)
+        assert step() == ((4, 5, 6), 1, True)  # ending at 5 it would lag 9
+        assert step() == ((5, 6, 7), 0, True)  # lag 7: in order again
+        write(23)  # the window two on (ending at 9) is no longer in the ring
+        assert step() == ((21, 22, 23), 15, False)
