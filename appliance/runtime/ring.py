@@ -267,7 +267,7 @@ class PairRing:
     # ------------------------------------------------------------------ readers
 
     def take_newest(self, k: int = 3, *, stride: int = 1, phase: int = 0,
-                    max_lag: int | None = None, step_over: bool = False) -> PairLease | None:
+                    max_lag: int | None = None) -> PairLease | None:
         """Lend the newest ``k`` consecutive pairs if their window was not taken yet.
 
         Parameters
@@ -286,14 +286,6 @@ class PairRing:
             beyond that, the newest (the windows in between are skipped). A reader that
             starts each triple from its previous one stays warm this way while it lags a
             little, instead of jumping to the newest window and starting cold.
-        step_over : bool
-            With ``max_lag``: beyond it, skip only the next window of this phase and take
-            the one after it, as long as that one is still in the ring (ends at most
-            ``capacity - k - 1`` pairs behind the newest); farther behind, the newest. A
-            reader that cannot keep up then loses one window at a time and can still start
-            each from its previous one ``2 * stride`` pairs back (stride 1: a triple two
-            frames on, :mod:`processing.chain.state`), instead of a cold start after every
-            jump to the newest.
 
         Returns
         -------
@@ -318,13 +310,8 @@ class PairRing:
             first = k - 1 + (phase - (k - 1)) % stride  # first window end of this phase
             if end < first or end <= claimed:
                 return None
-            if max_lag is not None and claimed >= first:
-                lag = newest - (claimed + stride)
-                if lag <= max_lag:
-                    end = claimed + stride  # the next window of this phase, in order
-                elif (step_over and claimed + 2 * stride <= end
-                      and lag - stride <= self.capacity - k - 1):
-                    end = claimed + 2 * stride  # one window skipped
+            if max_lag is not None and claimed >= first and newest - (claimed + stride) <= max_lag:
+                end = claimed + stride  # the next window of this phase, in order
             skipped = (end - max(claimed, first - stride)) // stride - 1
             self._header[word] = end
             self._header[_CLAIMED] = max(int(self._header[_CLAIMED]), end)

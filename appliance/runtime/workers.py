@@ -16,10 +16,7 @@ phases 0 and 1) and starts from its own triple two frames earlier; "take the new
 alone would hand consecutive triples to alternating workers and keep every triple cold.
 A worker also takes its windows in order while it lags at most half the ring behind
 (``max_lag``), so that a short stall does not make it jump ahead and start cold; beyond
-that a single worker skips one triple at a time and starts the next from the one two frames
-back, as two workers always do (a worker that cannot keep up at all thus stays warm instead
-of starting cold after every jump), and two workers skip to the newest window of their
-phase. More than two workers take the newest window of any phase.
+that it skips to the newest. More than two workers take the newest window of any phase.
 """
 
 from __future__ import annotations
@@ -164,10 +161,8 @@ class _Worker:
         """The next window copied out of the ring: its result to fill, its single camera
         (None: stereo) and the (3, H, W) left and right frames (None: no window yet, or it
         was overwritten while copying)."""
-        # One worker beyond the lag skips one triple at a time and stays warm (its state
-        # follows a triple two frames on); two would be four frames apart: the newest.
         lease = self.ring.take_newest(3, stride=self.stride, phase=self.phase,
-                                      max_lag=self.max_lag, step_over=self.stride == 1)
+                                      max_lag=self.max_lag)
         if lease is None:
             time.sleep(0.002)
             return None

@@ -121,7 +121,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     times: Times = (float(times_s[0]), float(times_s[1]), float(times_s[2]))
     stream = state if state is not None else ChainState()
     clock = _Laps()
-    steps = stream.steps_after(times)  # before this triple replaces the previous one
+    follows = stream.follows(times)  # before the warm start replaces the previous triple
 
     fixed = stream.scale_to_use(params.diff_scale)
     scale = fixed if fixed is not None else initial_scale(left, right, frames_geometry, params)
@@ -140,7 +140,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
 
     box = _region(pl, params, warm, stream)
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
-                                                 stream.change_history(steps))
+                                                 stream.change_history(follows))
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
     flow = _flow(cl, params, cwarm, pyramids)
     clock.lap("flow")

@@ -28,12 +28,9 @@ otherwise re-using it would cost an interpolation, and it is computed anew.
 A warm start is taken only when this triple follows the previous one of the same
 :class:`ChainState` exactly ``stride`` frames later, as proved by the shared capture times
 (stride 1: (t1, t2) of the previous are (t0, t1) of this one; stride 2: t2 of the previous
-is t0 of this one). With two workers taking every other triple (the daemon), each worker's
-state has stride 2. A stride-1 state also follows a triple two frames on: a single worker
-that cannot keep up skips one triple at a time and starts the next from the one before, as
-two workers always do. Anything else - a dropped frame, a restart, a longer skip, a
-reordered or repeated triple - is a cold start: full pyramid and the configured initial
-disparity.
+is t0 of this one). Anything else - a dropped frame, a restart, a reordered or repeated
+triple - is a cold start: full pyramid and the configured initial disparity. With two
+workers taking every other triple (the daemon), each worker's state has stride 2.
 """
 
 from __future__ import annotations
@@ -66,7 +63,7 @@ DifferenceKey = tuple[float, float, tuple[float, float], Hashable]
 @dataclass(frozen=True)
 class WarmStart:
     """The previous fields a warm-started call begins from (w_L, d_L, d'_L), px, of the
-    triple ``steps`` frames back (1 or 2, :meth:`ChainState.steps_after`)."""
+    triple ``steps`` frames back (the state's stride)."""
 
     flow: np.ndarray
     disparity: np.ndarray
@@ -85,8 +82,7 @@ class ChainState:
     ----------
     stride : int
         Frames between the first frames of two triples this state sees in succession: 1
-        when one process handles every triple (it also follows a triple two frames on, a
-        skipped one between), 2 when two workers alternate.
+        when one process handles every triple, 2 when two workers alternate.
     scale : DiffScaleTracker or None
         Tracked normalisation scale of the differential images.
     previous_flow, previous_disparity, previous_change : ndarray or None
@@ -137,21 +133,14 @@ class ChainState:
         if self.stride not in STRIDES:
             raise ValueError(f"stride must be one of {STRIDES}, got {self.stride!r}")
 
-    def steps_after(self, times: Times) -> int:
-        """How many frames after the previous triple the triple at ``times`` starts: the
-        state's ``stride``, or 2 for a stride-1 state whose reader skipped one triple (a
-        worker that cannot keep up, :meth:`appliance.runtime.ring.PairRing.take_newest`);
-        0 when it does not follow the previous triple."""
+    def follows(self, times: Times) -> bool:
+        """True when ``times`` is the triple ``stride`` frames after the previous one."""
         prev = self.previous_times
         if prev is None:
-            return 0
-        if self.stride == 1 and prev[1:] == times[:2]:
-            return 1
-        return 2 if prev[2] == times[0] else 0
-
-    def follows(self, times: Times) -> bool:
-        """True when ``times`` follows the previous triple (:meth:`steps_after`)."""
-        return self.steps_after(times) > 0
+            return False
+        if self.stride == 1:
+            return prev[1:] == times[:2]
+        return prev[2] == times[0]
 
     def reset(self) -> None:
         """Forget the previous triple (the next call starts cold); keeps the scale."""
@@ -205,8 +194,7 @@ class ChainState:
         if scene_change:
             self.cold_starts += 1
             return None
-        steps = self.steps_after(times)
-        ok = (enabled and steps > 0 and self.previous_flow is not None
+        ok = (enabled and self.follows(times) and self.previous_flow is not None
               and self.previous_disparity is not None and self.previous_change is not None
               and not (cold_every > 0 and self.warm_run + 1 >= cold_every))
         if not ok:
@@ -218,13 +206,12 @@ class ChainState:
         assert self.previous_flow is not None and self.previous_disparity is not None
         assert self.previous_change is not None
         return WarmStart(self.previous_flow, self.previous_disparity, self.previous_change,
-                         steps)
+                         self.stride)
 
-    def change_history(self, steps: int) -> tuple[np.ndarray | None, int]:
-        """The previous triple's d'_L (None unless this triple follows it ``steps`` > 0
-        frames later, :meth:`steps_after`) and those frames, for the temporal coherence of
-        d'."""
-        return (self.previous_change if steps > 0 else None), (steps or self.stride)
+    def change_history(self, follows: bool) -> tuple[np.ndarray | None, int]:
+        """The previous triple's d'_L (None unless this triple ``follows`` it) and the frames
+        between the two triples (the stride), for the temporal coherence of d'."""
+        return (self.previous_change if follows else None), self.stride
 
     # -- frames and shifts ---------------------------------------------------------------
 
