@@ -19,7 +19,8 @@ temperature of the simulation (285 K)::
     python benchmarks/object_optical_depth.py benchmarks/matrices/wide.yaml
 
 prints per scene the quantiles of |D| and, per threshold, the share of object-edge pixels
-and of moving-gas pixels above it. Analysis only: the chain does not use it.
+and of moving-gas pixels above it: the measured basis of the chain's opaque-edge gate
+(:mod:`processing.preprocess.opaque_gate`, `opaque_gate_gas_k`).
 """
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from appliance.config import Config
+from appliance.config import Config, ConfigError
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.live.fanout import views_of
 from appliance.live.view import LiveView
@@ -67,7 +67,7 @@ from appliance.threads import NamedThread
 from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import Mounting
 from processing.calibration import load_calibration
-from processing.chain import StereoGeometry
+from processing.chain import ChainParameters, StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -259,6 +259,7 @@ class Appliance:
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
         self.params = cfg.processing.chain_parameters(defaults)
+        check_radiometry(self.params, self.geometry)
         self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning,
                                               rendering=self.site.background is not None)
         self.emission = emission_setup(cfg, self.site.truth)
@@ -428,3 +429,11 @@ class Appliance:
     def _health_counters(self) -> dict[str, int]:
         return health_counters(self)
 
+
+def check_radiometry(params: ChainParameters, geometry: StereoGeometry | None) -> None:
+    """ConfigError (exit 2, before any device opens) when a chain setting needs the
+    cameras' radiometric curves and the site has none: the opaque-edge gate."""
+    if params.opaque_gate_gas_k is not None and (
+            geometry is None or geometry.curve_left is None or geometry.curve_right is None):
+        raise ConfigError(["processing.parameters.opaque_gate_gas_k: needs both cameras' "
+                           "radiometric curves (a calibration with characteristic curves)"])

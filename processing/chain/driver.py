@@ -62,6 +62,7 @@ from processing.preprocess.differential import (
     rescale_differences,
     scale_samples,
 )
+from processing.preprocess.opaque_gate import remove_opaque_edges
 from processing.segmentation.segment import segment_gas
 from processing.solvers.variational import PyramidCache
 from processing.stereo.coherence import smooth_disparity_change
@@ -131,6 +132,11 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     blanked = None
     if params.depth_gate:
         pl, pr, blanked = _depth_gate(pl, pr, params, flags)
+    if params.opaque_gate_gas_k is not None:
+        pl, pr, blanked = remove_opaque_edges(
+            pl, pr, stream.frames_of(times), (geometry.curve_left, geometry.curve_right),
+            params.opaque_gate_gas_k, params.min_contrast_k, blanked, flags)
+    if params.depth_gate or params.opaque_gate_gas_k is not None:
         clock.lap("depth_gate")
     flags.extend(preprocess_flags(pl, pr))
     (pl, pr), scale, measured, target = _settle_scale(pl, pr, stream, scale, fixed is None)

@@ -92,6 +92,13 @@ class ChainParameters:
         drifts into the band. In [0, 1]; 0 uses the votes alone. The default 0.5 lies above
         the gas's largest change next to an object 10 K warmer than a plant wall (measured:
         the object's edge changes 4-10x as much as the gas does).
+    opaque_gate_gas_k : float or None
+        Gas temperature in K (about the ambient air's) for the opaque-edge gate
+        (:mod:`processing.preprocess.opaque_gate`): the moving edges of a warm object inside
+        the gas's depth band, which the depth gate cannot remove, are removed by their
+        differential optical depth. Needs the radiometric curves. None (the default) leaves
+        it off: on the wide matrix it turned the object's direction into the gas's but left
+        the magnitude short (docs/evaluation-sceneflow.md).
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
     temporal_weight : float
@@ -164,6 +171,7 @@ class ChainParameters:
     depth_gate: bool = True
     gate_tolerance_px: float = 1.5
     gate_grow_fraction: float = 0.5
+    opaque_gate_gas_k: float | None = None
     max_motion_px: int = 8
     temporal_weight: float = 0.7
     diff_scale: float | None = None
@@ -206,6 +214,9 @@ class ChainParameters:
                              f"got {self.region_margin_px!r}")
         if not self.gate_tolerance_px >= 0:
             raise ValueError(f"gate_tolerance_px must be >= 0, got {self.gate_tolerance_px!r}")
+        if self.opaque_gate_gas_k is not None and not 150.0 < self.opaque_gate_gas_k < 400.0:
+            raise ValueError("opaque_gate_gas_k must be a temperature in K in (150, 400) or "
+                             f"null, got {self.opaque_gate_gas_k!r}")
         if not 0 <= self.gate_grow_fraction <= 1:
             raise ValueError(f"gate_grow_fraction must be in [0, 1], "
                              f"got {self.gate_grow_fraction!r}")

@@ -296,6 +296,11 @@ class ChainState:
         self.frames.update({(camera, t): img for t, img in zip(times, out, strict=True)})
         return out
 
+    def frames_of(self, times: Times) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The left and right corrected frames of the triple at ``times``, as
+        :meth:`corrected_frames` left them."""
+        return ([self.frames[(0, t)] for t in times], [self.frames[(1, t)] for t in times])
+
     # -- end of a triple -----------------------------------------------------------------
 
     def finish(self, *, times: Times, scale: float, fixed_scale: float | None,
