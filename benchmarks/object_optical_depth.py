@@ -33,7 +33,7 @@ import numpy as np
 
 from appliance.evaluation.matrix_file import load_matrix
 from appliance.evaluation.robustness import Matrix, Scene, scene_frames
-from processing.calibration.radiometric import band_radiance
+from processing.calibration.radiometric import gas_radiance_and_floor
 from processing.preprocess.differential import differential_image, radiometric_correction
 
 #: Gas temperature of the simulated scenes, K (``processing.synthetic.imaging.Radiometry``).
@@ -82,10 +82,8 @@ def edge_and_gas_depths(matrix: Matrix, scene: Scene, cache: Path
     curve = geo.curve_left
     if curve is None:
         raise ValueError("the matrix's frames carry no radiometric curve")
-    lg = float(band_radiance(GAS_K, curve.band_m))
-    # the contrast floor of the chain's optical depth: 1 K at the gas temperature
-    per_k = float(band_radiance(GAS_K + 0.5, curve.band_m)
-                  - band_radiance(GAS_K - 0.5, curve.band_m))
+    # the chain's contrast floor: 1 K at the gas temperature
+    lg, per_k = gas_radiance_and_floor(GAS_K, curve.band_m, 1.0)
     edges, gas = [], []
     for k in range(len(ideal) - 1):
         obj = (radiometric_correction(with_object[k].left, curve),

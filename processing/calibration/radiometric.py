@@ -94,6 +94,27 @@ def band_radiance(
     return emissivity * 0.5 * (hi - lo) * (spectral @ _GL_W)
 
 
+def gas_radiance_and_floor(temperature_k: float, band_m: tuple[float, float],
+                           floor_k: float) -> tuple[float, float]:
+    """L_g, the in-band radiance of a black body at the gas temperature, and a contrast floor
+    of ``floor_k`` kelvin at that temperature, both in W m^-2 sr^-1: the divisor's floor of the
+    differential optical depth (I(t) - I(t+1)) / (I_mid - L_g).
+
+    Parameters
+    ----------
+    temperature_k : float
+        Gas temperature, K.
+    band_m : (float, float)
+        The camera's band, m (:attr:`CharacteristicCurve.band_m`).
+    floor_k : float
+        The floor in kelvin (radiance of a 1 K step about the gas temperature, times this).
+    """
+    t = float(temperature_k)
+    lg = float(band_radiance(t, band_m))
+    per_k = float(band_radiance(t + 0.5, band_m) - band_radiance(t - 0.5, band_m))
+    return lg, per_k * float(floor_k)
+
+
 def celsius_to_kelvin(t_c: float | np.ndarray) -> np.ndarray:
     """Degrees Celsius to kelvin."""
     return np.asarray(t_c, np.float64) + 273.15

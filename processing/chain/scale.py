@@ -9,7 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from processing.calibration.radiometric import band_radiance
+from processing.calibration.radiometric import gas_radiance_and_floor
 from processing.chain.parameters import ChainParameters
 from processing.preprocess.differential import differential_image, radiometric_correction
 from processing.stereo_geometry import StereoGeometry
@@ -22,10 +22,8 @@ def gas_radiance(params: ChainParameters,
     curve = geometry.curve_left
     if params.gas_temperature_k is None or curve is None or geometry.curve_right is None:
         return None, 0.0
-    t = float(params.gas_temperature_k)
-    lg = float(band_radiance(t, curve.band_m))
-    per_k = float(band_radiance(t + 0.5, curve.band_m) - band_radiance(t - 0.5, curve.band_m))
-    return lg, per_k * float(params.min_contrast_k)
+    return gas_radiance_and_floor(params.gas_temperature_k, curve.band_m,
+                                  params.min_contrast_k)
 
 
 def initial_scale(left: Sequence[np.ndarray], right: Sequence[np.ndarray],

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from processing.calibration.radiometric import CharacteristicCurve, band_radiance
+from processing.calibration.radiometric import CharacteristicCurve, gas_radiance_and_floor
 from processing.preprocess.depth_gate import DepthGate, apply_gate
 from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.order_statistics import median
@@ -104,15 +104,14 @@ def remove_opaque_edges(pl: PreprocessedTriple, pr: PreprocessedTriple,
         if curve is None:
             raise ValueError("opaque_gate_gas_k needs the cameras' radiometric curves "
                              "(a calibration with characteristic curves)")
-        lg = float(band_radiance(gas_k, curve.band_m))
-        per_k = float(band_radiance(gas_k + 0.5, curve.band_m)
-                      - band_radiance(gas_k - 0.5, curve.band_m))
-        masks.append(opaque_edges(own, triple.raw0, triple.raw1, lg, per_k * min_contrast_k))
+        lg, floor = gas_radiance_and_floor(gas_k, curve.band_m, min_contrast_k)
+        masks.append(opaque_edges(own, triple.raw0, triple.raw1, lg, floor))
     if not (masks[0].any() or masks[1].any()):
         return pl, pr, blanked
-    if blanked is not None:
-        masks = [m | b for m, b in zip(masks, blanked, strict=True)]
     if "object_motion_rejected" not in flags:
         flags.append("object_motion_rejected")
+    # only the new pixels: what the depth gate blanked is blanked already
     pl, pr = apply_gate(pl, pr, DepthGate(masks[0], masks[1], float(masks[0].mean())))
+    if blanked is not None:
+        masks = [m | b for m, b in zip(masks, blanked, strict=True)]
     return pl, pr, (masks[0], masks[1])
