@@ -1,0 +1,144 @@
+"""Which component of the gas velocity falls short: the chain's mean V against the reference.
+
+Run from the repository root on one scene of a robustness matrix:
+
+    PYTHONPATH=. python benchmarks/velocity_components.py --matrix benchmarks/matrices/wide.yaml \\
+        --seed 47 [--condition "noise 0.03 K"] [--part holdout] [--config FILE]
+
+For every triple, on the pixels that are segmented, valid and gas (the reference's mask):
+the measured and the reference mean of V_X, V_Y, V_Z (Eq. 4, m/s, left camera frame), the
+mean disparity d and disparity change d' there (px), the normalisation scale the chain used
+and its flags. At the end: the means over the triples, each component's share of the
+reference (measured / reference; none where the reference has next to nothing of that
+component) and the scene's RMVE / AEMV as ``ogiflow eval robustness`` computes them (Eq. 10:
+the segmented region against the reference's). ``--config FILE`` runs the chain as
+``ogiflow eval robustness --config FILE`` does (the file's ``processing.parameters`` over the
+scene's gas depth band), e.g. with ``disparity_options: {constant_mode: false}`` or a fixed
+``diff_scale``; without it, the matrix's field settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from appliance.evaluation import robustness
+from appliance.evaluation.matrix_file import load_matrix
+from appliance.evaluation.sceneflow import frame_metrics
+from appliance.evaluation.sceneflow_setup import load_processing
+from processing.chain import ChainState, compute_scene_flow
+from processing.metrics import sceneflow as sm
+from processing.synthetic.reference import triplet_reference
+
+#: A component of the reference below this share of its speed has no meaningful share.
+MIN_COMPONENT_SHARE = 0.05
+
+
+def common_means(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
+                 reference: np.ndarray, reference_mask: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The measured and the reference mean velocity on the pixels both count as gas.
+
+    Parameters
+    ----------
+    velocity, reference : ndarray, shape (H, W, 3)
+        Measured V and reference V*, m/s (the reference may hold NaN off its mask).
+    valid, gas_mask, reference_mask : ndarray, shape (H, W), bool
+        Where V is defined, the segmented gas, the reference's gas.
+
+    Returns
+    -------
+    (measured, reference, pixels) or None
+        Means, shape (3,), and the (H, W) bool mask they average over; None when no pixel
+        is segmented, valid and gas.
+    """
+    both = np.asarray(gas_mask, bool) & np.asarray(valid, bool) & np.asarray(reference_mask,
+                                                                              bool)
+    ref_clean = np.where(reference_mask[..., None], reference, 0.0)
+    measured = sm.mean_velocity(velocity, both)
+    truth = sm.mean_velocity(ref_clean, both)
+    if measured is None or truth is None:
+        return None
+    return measured, truth, both
+
+
+def component_shares(measured: np.ndarray, reference: np.ndarray,
+                     min_share: float = MIN_COMPONENT_SHARE) -> np.ndarray:
+    """measured / reference per component, shape (3,); NaN where the reference component is
+    below ``min_share`` of the reference speed (an in-plane wind's V_Z: any ratio is noise).
+    """
+    m = np.asarray(measured, np.float64)
+    r = np.asarray(reference, np.float64)
+    speed = float(np.linalg.norm(r))
+    out = np.full(3, np.nan)
+    big = np.abs(r) >= min_share * speed if speed > 0 else np.zeros(3, bool)
+    out[big] = m[big] / r[big]
+    return out
+
+
+def _fmt(v: np.ndarray) -> str:
+    return "(" + ", ".join("  n/a" if not np.isfinite(x) else f"{x:5.2f}" for x in v) + ")"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--matrix", type=Path, required=True, help="matrix file (YAML/JSON)")
+    ap.add_argument("--part", default="dev", choices=("dev", "holdout"))
+    ap.add_argument("--seed", type=int, required=True, help="the scene's seed")
+    ap.add_argument("--condition", default="ideal")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="run the chain with this configuration file's processing.parameters")
+    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/ogiflow/robustness",
+                    help="gas cache of `ogiflow eval robustness`")
+    args = ap.parse_args(argv)
+    matrix = load_matrix(args.matrix, args.part)
+    scene = next((s for s in matrix.scenes if s.seed == args.seed), None)
+    cond = next((c for c in matrix.conditions if c.name == args.condition), None)
+    if scene is None or cond is None:
+        ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
+                 f"{args.matrix} ({args.part})")
+    frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    if args.config is not None:
+        params = load_processing(args.config).chain_parameters(
+            {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
+    state = ChainState()
+    print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
+    print("triple  pixels  V measured (m/s)        V reference (m/s)       d (px)  d' (px)"
+          "  scale      flags")
+    measured, truth, rmve, aemv = [], [], [], []
+    for i in range(len(frames) - 2):
+        f0, f1, f2 = frames[i:i + 3]
+        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
+                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+        ref, ref_mask = triplet_reference(f0, f1)
+        metrics = frame_metrics(res.velocity, res.valid, res.gas_mask, res.u_sf,
+                                res.u_sf_valid, ref, ref_mask)
+        if metrics["rmve"] is not None:
+            rmve.append(metrics["rmve"])
+            aemv.append(metrics["aemv"])
+        common = common_means(res.velocity, res.valid, res.gas_mask, ref, ref_mask)
+        if common is None:
+            print(f"{i:6d}  no pixel segmented, valid and gas")
+            continue
+        v, r, both = common
+        measured.append(v)
+        truth.append(r)
+        print(f"{i:6d}  {int(both.sum()):6d}  {_fmt(v)}  {_fmt(r)}  "
+              f"{float(res.disparity[both].mean()):6.2f}  "
+              f"{float(res.disparity_change[both].mean()):7.3f}  {res.diff_scale:9.3g}  "
+              f"{','.join(res.summary.flags) or '-'}")
+    if not measured:
+        return 0
+    v, r = np.mean(measured, axis=0), np.mean(truth, axis=0)
+    print(f"mean    {'':6s}  {_fmt(v)}  {_fmt(r)}")
+    print(f"share of the reference (V_X, V_Y, V_Z): {_fmt(component_shares(v, r))}")
+    if rmve:
+        print(f"scene RMVE {np.mean(rmve):.1f} %, AEMV {np.mean(aemv):.1f} deg "
+              f"({len(rmve)} triples; as `ogiflow eval robustness`)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
