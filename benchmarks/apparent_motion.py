@@ -18,14 +18,10 @@ reference have it near s = 1 while the reference's own flow explains them worse.
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import cv2
 import numpy as np
 
-from appliance.evaluation import robustness
-from appliance.evaluation.matrix_file import load_matrix
+from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
 from processing.synthetic.reference import eq4_reference
 
@@ -68,21 +64,8 @@ def along_ratio(flow: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--matrix", type=Path, required=True, help="matrix file (YAML/JSON)")
-    ap.add_argument("--part", default="dev", choices=("dev", "holdout"))
-    ap.add_argument("--seed", type=int, required=True, help="the scene's seed")
-    ap.add_argument("--condition", default="ideal")
-    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/ogiflow/robustness",
-                    help="gas cache of `ogiflow eval robustness`")
-    args = ap.parse_args(argv)
-    matrix = load_matrix(args.matrix, args.part)
-    scene = next((s for s in matrix.scenes if s.seed == args.seed), None)
-    cond = next((c for c in matrix.conditions if c.name == args.condition), None)
-    if scene is None or cond is None:
-        ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
-                 f"{args.matrix} ({args.part})")
-    frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    ap = scene_arguments(__doc__ or "")
+    scene, cond, frames, geometry, params = matrix_scene(ap, ap.parse_args(argv))
     state = ChainState()
     s_px, b_m = geometry.camera_constant, geometry.baseline
     print(f"{scene.name} {cond.name}: per triple, on segmented gas pixels")

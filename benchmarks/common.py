@@ -11,12 +11,14 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from appliance.evaluation.benchmark import single_thread
 
-__all__ = ["differential_like_pair", "median_ms", "sequence_arguments", "single_thread"]
+__all__ = ["differential_like_pair", "matrix_scene", "median_ms", "scene_arguments",
+           "sequence_arguments", "single_thread"]
 
 
 def differential_like_pair(
@@ -65,3 +67,34 @@ def sequence_arguments(doc: str) -> argparse.Namespace:
     ap.add_argument("sequences", nargs="+", type=Path)
     ap.add_argument("--triples", type=int, default=None, help="first N triples only")
     return ap.parse_args()
+
+
+def scene_arguments(doc: str) -> argparse.ArgumentParser:
+    """Command line of the analyses of one robustness-matrix scene: ``--matrix``,
+    ``--part``, ``--seed``, ``--condition`` and the gas ``--cache`` (add more, then parse)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--matrix", type=Path, required=True, help="matrix file (YAML/JSON)")
+    ap.add_argument("--part", default="dev", choices=("dev", "holdout"))
+    ap.add_argument("--seed", type=int, required=True, help="the scene's seed")
+    ap.add_argument("--condition", default="ideal")
+    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/ogiflow/robustness",
+                    help="gas cache of `ogiflow eval robustness`")
+    return ap
+
+
+def matrix_scene(ap: argparse.ArgumentParser, args: argparse.Namespace
+                 ) -> tuple[Any, Any, list[Any], Any, Any]:
+    """(scene, condition, frames, geometry, chain parameters) the :func:`scene_arguments`
+    name, as ``ogiflow eval robustness`` renders and runs them (``ap.error`` when the matrix
+    has no such scene or condition)."""
+    from appliance.evaluation import robustness
+    from appliance.evaluation.matrix_file import load_matrix
+
+    matrix = load_matrix(args.matrix, args.part)
+    scene = next((s for s in matrix.scenes if s.seed == args.seed), None)
+    cond = next((c for c in matrix.conditions if c.name == args.condition), None)
+    if scene is None or cond is None:
+        ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
+                 f"{args.matrix} ({args.part})")
+    frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    return scene, cond, frames, geometry, params

@@ -19,49 +19,18 @@ scene's gas depth band), e.g. with ``disparity_options: {constant_mode: false}``
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import numpy as np
 
-from appliance.evaluation import robustness
-from appliance.evaluation.matrix_file import load_matrix
-from appliance.evaluation.sceneflow import frame_metrics
+from appliance.evaluation.sceneflow import common_mean_velocities, frame_metrics
 from appliance.evaluation.sceneflow_setup import load_processing
+from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
-from processing.metrics import sceneflow as sm
 from processing.synthetic.reference import triplet_reference
 
 #: A component of the reference below this share of its speed has no meaningful share.
 MIN_COMPONENT_SHARE = 0.05
-
-
-def common_means(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
-                 reference: np.ndarray, reference_mask: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The measured and the reference mean velocity on the pixels both count as gas.
-
-    Parameters
-    ----------
-    velocity, reference : ndarray, shape (H, W, 3)
-        Measured V and reference V*, m/s (the reference may hold NaN off its mask).
-    valid, gas_mask, reference_mask : ndarray, shape (H, W), bool
-        Where V is defined, the segmented gas, the reference's gas.
-
-    Returns
-    -------
-    (measured, reference, pixels) or None
-        Means, shape (3,), and the (H, W) bool mask they average over; None when no pixel
-        is segmented, valid and gas.
-    """
-    both = np.asarray(gas_mask, bool) & np.asarray(valid, bool) & np.asarray(reference_mask,
-                                                                              bool)
-    ref_clean = np.where(reference_mask[..., None], reference, 0.0)
-    measured = sm.mean_velocity(velocity, both)
-    truth = sm.mean_velocity(ref_clean, both)
-    if measured is None or truth is None:
-        return None
-    return measured, truth, both
 
 
 def component_shares(measured: np.ndarray, reference: np.ndarray,
@@ -83,23 +52,11 @@ def _fmt(v: np.ndarray) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--matrix", type=Path, required=True, help="matrix file (YAML/JSON)")
-    ap.add_argument("--part", default="dev", choices=("dev", "holdout"))
-    ap.add_argument("--seed", type=int, required=True, help="the scene's seed")
-    ap.add_argument("--condition", default="ideal")
+    ap = scene_arguments(__doc__ or "")
     ap.add_argument("--config", type=Path, default=None,
                     help="run the chain with this configuration file's processing.parameters")
-    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/ogiflow/robustness",
-                    help="gas cache of `ogiflow eval robustness`")
     args = ap.parse_args(argv)
-    matrix = load_matrix(args.matrix, args.part)
-    scene = next((s for s in matrix.scenes if s.seed == args.seed), None)
-    cond = next((c for c in matrix.conditions if c.name == args.condition), None)
-    if scene is None or cond is None:
-        ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
-                 f"{args.matrix} ({args.part})")
-    frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    scene, cond, frames, geometry, params = matrix_scene(ap, args)
     if args.config is not None:
         params = load_processing(args.config).chain_parameters(
             {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
@@ -118,11 +75,11 @@ def main(argv: list[str] | None = None) -> int:
         if metrics["rmve"] is not None:
             rmve.append(metrics["rmve"])
             aemv.append(metrics["aemv"])
-        common = common_means(res.velocity, res.valid, res.gas_mask, ref, ref_mask)
-        if common is None:
+        v, r, both = common_mean_velocities(res.velocity, res.valid, res.gas_mask, ref,
+                                            ref_mask)
+        if v is None or r is None:
             print(f"{i:6d}  no pixel segmented, valid and gas")
             continue
-        v, r, both = common
         measured.append(v)
         truth.append(r)
         print(f"{i:6d}  {int(both.sum()):6d}  {_fmt(v)}  {_fmt(r)}  "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from appliance.evaluation.sceneflow import common_mean_velocities
 from benchmarks import velocity_components as vc
 
 
@@ -27,9 +28,8 @@ def _fields() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarra
 
 def test_the_means_cover_only_pixels_segmented_valid_and_gas() -> None:
     velocity, valid, gas, reference, ref_mask = _fields()
-    out = vc.common_means(velocity, valid, gas, reference, ref_mask)
-    assert out is not None
-    measured, truth, both = out
+    measured, truth, both = common_mean_velocities(velocity, valid, gas, reference, ref_mask)
+    assert measured is not None and truth is not None
     assert both.sum() == 20 * 35
     np.testing.assert_allclose(measured, (1.0, -0.5, -1.0), rtol=1e-6)
     np.testing.assert_allclose(truth, (1.0, -0.5, -2.0), rtol=1e-6)
@@ -39,7 +39,9 @@ def test_the_means_cover_only_pixels_segmented_valid_and_gas() -> None:
 
 def test_no_common_pixel_gives_none() -> None:
     velocity, valid, gas, reference, ref_mask = _fields()
-    assert vc.common_means(velocity, valid, np.zeros_like(gas), reference, ref_mask) is None
+    measured, truth, both = common_mean_velocities(velocity, valid, np.zeros_like(gas),
+                                                   reference, ref_mask)
+    assert measured is None and truth is None and not both.any()
 
 
 def test_a_component_the_reference_hardly_has_gets_no_share() -> None:

@@ -118,13 +118,12 @@ def frame_metrics(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
     ref_clean = np.where(reference_mask[..., None], reference, 0.0)
     v_avg = sm.mean_velocity(velocity, region)
     v_ref = sm.mean_velocity(ref_clean, reference_mask)
-    both = region & reference_mask
-    aee = sm.aee_3d(ref_clean, velocity, both)
     # Eq. 10 averages V and V* over different regions (segmented vs reference), so RMVE
     # mixes velocity error with segmentation mismatch; the same two metrics over the
     # common pixels isolate the velocity error (not in the paper; for the analysis).
-    v_avg_c = sm.mean_velocity(velocity, both)
-    v_ref_c = sm.mean_velocity(ref_clean, both)
+    v_avg_c, v_ref_c, both = common_mean_velocities(velocity, valid, gas_mask, reference,
+                                                    reference_mask)
+    aee = sm.aee_3d(ref_clean, velocity, both)
     return {
         "rmve": sm.rmve(v_ref, v_avg),
         "aemv": sm.aemv(v_ref, v_avg),
@@ -141,6 +140,29 @@ def frame_metrics(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
         "pixels": int(region.sum()),
         "false_gas": _false_gas(gas_mask, column_density),
     }
+
+
+def common_mean_velocities(velocity: np.ndarray, valid: np.ndarray, gas_mask: np.ndarray,
+                           reference: np.ndarray, reference_mask: np.ndarray
+                           ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """The measured and the reference mean velocity on the pixels both count as gas.
+
+    Parameters
+    ----------
+    velocity, reference : ndarray, shape (H, W, 3)
+        Measured V and reference V*, m/s (the reference may hold NaN off its mask).
+    valid, gas_mask, reference_mask : ndarray, shape (H, W), bool
+        Where V is defined, the segmented gas, the reference's gas.
+
+    Returns
+    -------
+    (measured, reference, common)
+        The two means, shape (3,) (None where no pixel is segmented, valid and gas), and
+        the (H, W) bool mask of those pixels.
+    """
+    common = gas_mask & valid & reference_mask
+    ref_clean = np.where(reference_mask[..., None], reference, 0.0)
+    return sm.mean_velocity(velocity, common), sm.mean_velocity(ref_clean, common), common
 
 
 def _false_gas(gas_mask: np.ndarray, column_density: np.ndarray | None) -> float | None:
