@@ -161,8 +161,8 @@ def common_mean_velocities(velocity: np.ndarray, valid: np.ndarray, gas_mask: np
         the (H, W) bool mask of those pixels.
     """
     common = gas_mask & valid & reference_mask
-    ref_clean = np.where(reference_mask[..., None], reference, 0.0)
-    return sm.mean_velocity(velocity, common), sm.mean_velocity(ref_clean, common), common
+    # inside the reference's mask: no NaN of the reference is read, no cleaned copy needed
+    return sm.mean_velocity(velocity, common), sm.mean_velocity(reference, common), common
 
 
 def _false_gas(gas_mask: np.ndarray, column_density: np.ndarray | None) -> float | None:
