@@ -106,11 +106,17 @@ def strip_widths(curtain: Curtain, depth_m: np.ndarray, principal_point: tuple[f
 
 def sample_nearest(field: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Values of ``field`` ((H, W) or (H, W, C)) at the nearest pixels of ``points`` (N, 2)."""
-    h, w = field.shape[:2]
+    return field[nearest_pixels(field.shape[:2], points)]
+
+
+def nearest_pixels(shape: tuple[int, ...], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns) of the pixels nearest to ``points`` (N, 2) as (x, y) in an image of
+    ``shape`` (H, W), clipped to it: index several fields at the same samples with them."""
+    h, w = shape
     # floor(x + 0.5), not rint: rint rounds halves to even and would skip pixels.
     xi = np.clip(np.floor(points[:, 0] + 0.5).astype(int), 0, w - 1)
     yi = np.clip(np.floor(points[:, 1] + 0.5).astype(int), 0, h - 1)
-    return field[yi, xi]
+    return yi, xi
 
 
 @dataclass(frozen=True)
@@ -170,24 +176,23 @@ def curtain_flux(curtain: Curtain, sigma_kg_m2: np.ndarray, velocity_m_s: np.nda
     -------
     CurtainFlux
     """
-    pts = curtain.samples()
-    gas = sample_nearest(gas_mask, pts).astype(bool)
+    at = nearest_pixels(gas_mask.shape, curtain.samples())  # every field at the same pixels
+    gas = gas_mask[at].astype(bool)
     n_gas = int(gas.sum())
-    faint = (np.zeros_like(gas) if column_mask is None
-             else sample_nearest(column_mask, pts).astype(bool))
+    faint = np.zeros_like(gas) if column_mask is None else column_mask[at].astype(bool)
     if n_gas == 0:
         if faint.any():  # gas without a velocity: undefined, not zero
             return CurtainFlux(0.0, False, 0, 1.0)
         return CurtainFlux(0.0, True, 0, 0.0)  # no gas crosses: a defined zero
-    ok = sample_nearest(valid, pts).astype(bool) & gas
+    ok = valid[at].astype(bool) & gas
     n_ok = int(ok.sum())
     filled = 1.0 - n_ok / n_gas
     if n_ok == 0 or filled > max_filled:
         return CurtainFlux(0.0, False, n_gas, filled)
     counted = gas | faint
-    sigma = np.where(counted, sample_nearest(sigma_kg_m2, pts), 0.0)
-    vel = sample_nearest(velocity_m_s, pts).astype(np.float64)
-    z = sample_nearest(depth_m, pts).astype(np.float64)
+    sigma = np.where(counted, sigma_kg_m2[at], 0.0)
+    vel = velocity_m_s[at].astype(np.float64)
+    z = depth_m[at].astype(np.float64)
     vel[~ok] = np.median(vel[ok], axis=0)
     z[~ok] = np.median(z[ok])
     n = curtain_normal(curtain, principal_point, camera_constant)

@@ -82,11 +82,13 @@ def place_curtains(gas_mask: np.ndarray, flow: np.ndarray, *, n_curtains: int = 
     if not 0.0 <= exclusion_fraction < 1.0:
         raise ValueError(f"exclusion_fraction must be in [0, 1), got {exclusion_fraction!r}")
     mask = np.asarray(gas_mask, bool)
-    ys, xs = np.nonzero(mask)
-    if len(xs) < min_pixels:
+    at = np.flatnonzero(mask)
+    if len(at) < min_pixels:
         return Placement((), None, None, "no gas")
-    f = np.asarray(flow, np.float64)[ys, xs]
-    mean = np.nanmean(f, axis=0)
+    ys, xs = np.divmod(at, mask.shape[1])
+    f = np.asarray(np.reshape(flow, (-1, 2))[at], np.float64)  # the gas pixels, then widened
+    # the same sum and division; nanmean's NaN handling costs a third of the placement
+    mean = np.nanmean(f, axis=0) if np.isnan(f).any() else f.mean(axis=0)
     norm = float(np.hypot(*mean))
     if not np.isfinite(norm) or norm < 1e-3:
         return Placement((), None, None, "no motion")

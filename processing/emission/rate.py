@@ -95,13 +95,16 @@ def out_of_plane_deg(sigma_kg_m2: np.ndarray, velocity_m_s: np.ndarray, valid: n
         is zero.
     """
     use = np.asarray(gas_mask, bool) & np.asarray(valid, bool)
-    ys, xs = np.nonzero(use)
-    if len(xs) == 0:
+    at = np.flatnonzero(use)  # flat indices: cheaper than (ys, xs) pairs
+    if len(at) == 0:
         return None
-    w = np.clip(np.asarray(sigma_kg_m2, np.float64)[ys, xs], 0.0, None)
-    vel = np.asarray(velocity_m_s, np.float64)[ys, xs]
+    # index first, then widen: the gas pixels, not the whole frame, become float64
+    w = np.clip(np.asarray(np.ravel(sigma_kg_m2)[at], np.float64), 0.0, None)
+    vel = np.asarray(np.reshape(velocity_m_s, (-1, 3))[at], np.float64)
     ok = np.isfinite(w) & np.all(np.isfinite(vel), axis=1)
-    w, vel, xs, ys = w[ok], vel[ok], xs[ok], ys[ok]
+    if not ok.all():
+        w, vel, at = w[ok], vel[ok], at[ok]
+    ys, xs = np.divmod(at, use.shape[1])
     if w.sum() <= 0:
         return None
     v = (w[:, None] * vel).sum(axis=0) / w.sum()
