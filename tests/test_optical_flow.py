@@ -98,3 +98,38 @@ def test_middlebury_aee_no_worse_than_paper(data_dir: Path, sequence: str) -> No
     gt = read_flo(folder / "flow10.flo")
     aee = average_endpoint_error(brox_optical_flow(i0, i1), gt, known_mask(gt))
     assert aee <= PAPER_AEE[sequence]
+
+
+def _blanked_pair() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A faint gas-like texture (a differential image: 0.35 +- 0.05 around the neutral 0.5)
+    moving by (1.5, 0) px, with a square blanked to 0.5 ("no change") in both frames, as
+    the depth gate leaves an object: (img0, img1, blanked, ring), the ring the pixels
+    3-10 px outside the square."""
+    raw = texture(seed=11)
+    img1 = (0.35 + 0.1 * (raw - raw.mean())).astype(np.float32)
+    gt = np.zeros((*img1.shape, 2), np.float32)
+    gt[..., 0] = 1.5
+    img0 = pair_with_flow(img1, gt)
+    blanked = np.zeros(img1.shape, bool)
+    blanked[30:66, 44:84] = True
+    img0[blanked] = img1[blanked] = 0.5
+    near = cv2.dilate(blanked.view(np.uint8), np.ones((21, 21), np.uint8)).view(bool)
+    inner = cv2.dilate(blanked.view(np.uint8), np.ones((7, 7), np.uint8)).view(bool)
+    return img0, img1, blanked, near & ~inner
+
+
+def test_a_blanked_region_holds_the_flow_beside_it_unless_its_data_terms_are_dropped() -> None:
+    img0, img1, blanked, ring = _blanked_pair()
+    held = brox_optical_flow(img0, img1)[ring][:, 0].mean()
+    free = brox_optical_flow(img0, img1, blanked=blanked)
+    assert held < 1.0  # the static edge of the square holds the flow back (0.71 measured)
+    assert abs(free[ring][:, 0].mean() - 1.5) < 0.05
+    assert abs(free[blanked][:, 0].mean() - 1.5) < 0.1  # filled in by the smoothness
+
+
+def test_nothing_blanked_gives_the_same_flow_and_a_wrong_shape_is_refused() -> None:
+    img0, img1, blanked, _ = _blanked_pair()
+    np.testing.assert_array_equal(brox_optical_flow(img0, img1),
+                                  brox_optical_flow(img0, img1, blanked=np.zeros_like(blanked)))
+    with pytest.raises(ValueError, match="blanked"):
+        brox_optical_flow(img0, img1, blanked=blanked[1:])

@@ -148,7 +148,8 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
                                                  stream.change_history(follows))
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
-    flow = _flow(cl, params, cwarm, pyramids)
+    flow = _flow(cl, params, cwarm, pyramids,
+                 None if cblank is None or not params.flow_drop_blanked else cblank[0])
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
@@ -341,11 +342,12 @@ def _segment(area: np.ndarray | None, solved: np.ndarray | None, diff: np.ndarra
 
 
 def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,
-          pyramids: PyramidCache) -> np.ndarray:
-    """Stage 2 (Sec. 4.2, Eq. 5): w_L between the left differential images, (H, W, 2) px."""
+          pyramids: PyramidCache, blanked: np.ndarray | None = None) -> np.ndarray:
+    """Stage 2 (Sec. 4.2, Eq. 5): w_L between the left differential images, (H, W, 2) px;
+    no data term on ``blanked`` pixels (``params.flow_drop_blanked``)."""
     return brox_optical_flow(
         pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta, pyramid_cache=pyramids,
-        initial_flow=None if warm is None else warm.flow,
+        initial_flow=None if warm is None else warm.flow, blanked=blanked,
         **solver_options(params.flow_options, params.warm_flow_for(warm.steps if warm else 1),
                          warm is not None))
 

@@ -101,6 +101,10 @@ class ChainParameters:
         the magnitude short (docs/evaluation-sceneflow.md).
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
+    flow_drop_blanked : bool
+        The flow (Eq. 5) has no data term on the pixels the gates blanked nor where a
+        pixel's warped sample lands on them, as the joint solver (Eq. 6) has none; False
+        lets the blanked "no change" hold the flow beside it.
     temporal_weight : float
         Share a in [0, 1) of the previous triple's d', carried along the flow, in this
         triple's d' (:mod:`processing.stereo.coherence`); 0 uses each triple alone (the paper).
@@ -173,6 +177,7 @@ class ChainParameters:
     gate_grow_fraction: float = 0.5
     opaque_gate_gas_k: float | None = None
     max_motion_px: int = 8
+    flow_drop_blanked: bool = False
     temporal_weight: float = 0.7
     diff_scale: float | None = None
     scale_forgetting: float = 0.02

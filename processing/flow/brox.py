@@ -19,7 +19,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from processing.solvers import derivatives, lagged, redblack, variational
+from processing.solvers import derivatives, lagged, pyramid, redblack, variational
 from processing.validation import (
     MIN_IMAGE_SIZE,
     as_float_image,
@@ -195,6 +195,26 @@ def _split_flow_inputs(
             o[8, j] = one if inside else zero
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _drop_blanked_terms(usable: np.ndarray, u: np.ndarray, v: np.ndarray,
+                        inputs: np.ndarray) -> None:
+    """Drop the data term (the valid plane of ``inputs``, :func:`_split_flow_inputs`) of
+    every pixel that is, or whose warped sample x + w lands on (nearest pixel), unusable.
+
+    ``usable`` (H, W) float32: 0 where the depth gate blanked the differential images
+    (:func:`processing.solvers.pyramid.usable_map`). A blanked region holds a constant
+    "no change" whose border is an edge that is not the gas's: matched, it holds the
+    flow beside it (the joint solver drops such terms too).
+    """
+    h, w = usable.shape
+    for y in range(h):
+        for x in range(w):
+            xs = min(max(int(np.floor(x + u[y, x] + 0.5)), 0), w - 1)
+            ys = min(max(int(np.floor(y + v[y, x] + 0.5)), 0), h - 1)
+            if usable[y, x] == 0 or usable[ys, xs] == 0:
+                inputs[8, (x + y) & 1, y + 1, (x >> 1) + 1] = 0
+
+
 def _derivatives(image: np.ndarray) -> tuple[np.ndarray, ...]:
     """(d/dx, d/dy, d2/dx2, d2/dxdy, d2/dy2) of ``image`` (H, W) float32, 5-tap stencils."""
     ix, iy = derivatives.dx(image), derivatives.dy(image)
@@ -214,8 +234,10 @@ def _level_flow(
     n_inner: int,
     n_sor: int,
     omega: float,
+    usable: np.ndarray | None = None,
 ) -> None:
-    """Refine (u, v) in place at one pyramid level (outer warps x lagged FP x SOR)."""
+    """Refine (u, v) in place at one pyramid level (outer warps x lagged FP x SOR);
+    ``usable`` (None: all) drops the data terms on blanked pixels (:func:`_drop_blanked_terms`)."""
     xx, yy = derivatives.pixel_grid(i0.shape)
     d0 = _derivatives(i0)
     ws = variational.workspace(i0.shape)
@@ -223,6 +245,8 @@ def _level_flow(
         # Derivatives of the warped frame (one remap instead of six).
         i1w = derivatives.warp(i1, xx + u, yy + v)
         _split_flow_inputs(i0, i1w, d0, _derivatives(i1w), u, v, ws.inputs)
+        if usable is not None:
+            _drop_blanked_terms(usable, u, v, ws.inputs)
         # One penaliser for both components: Eq. 5 penalises |grad u|^2 + |grad v|^2 jointly.
         lagged.lagged_iterations(_FlowTerms(beta), u, v, ws, (alpha, alpha), True, eps,
                                  n_inner, n_sor, omega)
@@ -245,6 +269,7 @@ def brox_optical_flow(
     initial_flow: np.ndarray | None = None,
     n_levels: int | None = None,
     pyramid_cache: variational.PyramidCache | None = None,
+    blanked: np.ndarray | None = None,
 ) -> np.ndarray:
     """Optical flow from ``image0`` to ``image1`` by minimising the paper's Eq. 5.
 
@@ -286,6 +311,9 @@ def brox_optical_flow(
     pyramid_cache : PyramidCache, optional
         Shares the images' pyramids with other solver calls on the same image objects
         (:class:`processing.solvers.variational.PyramidCache`).
+    blanked : ndarray, shape (H, W), bool, optional
+        Pixels the depth gate set to "no change" in both images: no data term on them,
+        nor where a pixel's warped sample lands on them (the smoothness fills them in).
 
     Returns
     -------
@@ -313,6 +341,9 @@ def brox_optical_flow(
                               n_warps=n_warps, n_inner=n_inner, n_sor=n_sor,
                               min_level_size=min_level_size)
     init = None if initial_flow is None else as_flow_field(initial_flow, i0.shape, "initial_flow")
+    if blanked is not None and np.shape(blanked) != i0.shape:
+        raise ValueError(f"blanked must have the images' shape {i0.shape}, "
+                         f"got {np.shape(blanked)}")
     shapes, (p0, p1) = variational.build_pyramids(
         (i0, i1), pyramid_factor=pyramid_factor, min_level_size=min_level_size,
         presmooth_sigma=presmooth_sigma, n_levels=n_levels, cache=pyramid_cache)
@@ -321,8 +352,9 @@ def brox_optical_flow(
     def solve_level(level: int, fields: variational.Fields) -> variational.Fields:
         u = np.ascontiguousarray(fields[0][..., 0])
         v = np.ascontiguousarray(fields[0][..., 1])
+        usable = None if blanked is None else pyramid.usable_map(blanked, shapes[level])
         _level_flow(p0[level], p1[level], u, v, alpha=alpha, beta=beta, eps=eps,
-                    n_warps=n_warps, n_inner=n_inner, n_sor=n_sor, omega=omega)
+                    n_warps=n_warps, n_inner=n_inner, n_sor=n_sor, omega=omega, usable=usable)
         return (np.stack([u, v], axis=-1),)
 
     return variational.coarse_to_fine(shapes, (flow,), solve_level)[0]

@@ -96,3 +96,15 @@ def resize_field(field: np.ndarray, shape: tuple[int, int], *, is_motion: bool) 
         else:
             out *= sx
     return out
+
+
+def usable_map(blanked: np.ndarray, shape: tuple[int, int], margin_px: int = 2) -> np.ndarray:
+    """Float32 map of one pyramid level of shape (rows, cols): 1 where the image carries
+    information, 0 on ``blanked`` (H, W) bool pixels and within ``margin_px`` (level px)
+    of them; a coarse pixel is unusable when any fine pixel under it is blanked. The
+    margin covers the pre-smoothing and the derivative stencils."""
+    k = 2 * margin_px + 1
+    frac = cv2.resize(blanked.astype(np.float32), (shape[1], shape[0]),
+                      interpolation=cv2.INTER_AREA)
+    bad = cv2.dilate((frac > 1e-3).astype(np.uint8), np.ones((k, k), np.uint8))
+    return np.ascontiguousarray(1.0 - bad, dtype=np.float32)

@@ -9,11 +9,10 @@ notation as in :mod:`processing.stereo.joint` (``x_R = x_L - d``).
 
 from __future__ import annotations
 
-import cv2
 import numba
 import numpy as np
 
-from processing.solvers import derivatives
+from processing.solvers import derivatives, pyramid
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -239,12 +238,5 @@ def usable_maps(blanked: tuple[np.ndarray, np.ndarray], shape: tuple[int, int],
     margin_px : int
         Extra unusable border at the level's resolution, px.
     """
-    k = 2 * margin_px + 1
-    kernel = np.ones((k, k), np.uint8)
-    out = []
-    for b in blanked:
-        frac = cv2.resize(b.astype(np.float32), (shape[1], shape[0]),
-                          interpolation=cv2.INTER_AREA)
-        bad = cv2.dilate((frac > 1e-3).astype(np.uint8), kernel)
-        out.append(np.ascontiguousarray(1.0 - bad, dtype=np.float32))
-    return out[0], out[1]
+    return (pyramid.usable_map(blanked[0], shape, margin_px),
+            pyramid.usable_map(blanked[1], shape, margin_px))
