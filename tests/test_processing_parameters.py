@@ -28,3 +28,10 @@ def test_every_unknown_key_is_named_far_misses_without_a_guess() -> None:
 def test_known_keys_are_taken() -> None:
     p = ChainParameters.from_mapping({"alpha": 0.07})
     assert p.alpha == 0.07 and p.beta == ChainParameters().beta
+
+
+def test_flow_drop_blanked_is_off_by_default_and_takes_only_a_boolean() -> None:
+    assert ChainParameters().flow_drop_blanked is False
+    assert ChainParameters.from_mapping({"flow_drop_blanked": True}).flow_drop_blanked
+    with pytest.raises(ValueError, match="flow_drop_blanked must be true or false"):
+        ChainParameters.from_mapping({"flow_drop_blanked": "yes"})

@@ -217,6 +217,9 @@ class ChainParameters:
                 or self.region_margin_px < 0:
             raise ValueError(f"region_margin_px must be an integer >= 0, "
                              f"got {self.region_margin_px!r}")
+        if not isinstance(self.flow_drop_blanked, bool):
+            raise ValueError(f"flow_drop_blanked must be true or false, "
+                             f"got {self.flow_drop_blanked!r}")
         if not self.gate_tolerance_px >= 0:
             raise ValueError(f"gate_tolerance_px must be >= 0, got {self.gate_tolerance_px!r}")
         if self.opaque_gate_gas_k is not None and not 150.0 < self.opaque_gate_gas_k < 400.0:

@@ -312,7 +312,7 @@ def brox_optical_flow(
         Shares the images' pyramids with other solver calls on the same image objects
         (:class:`processing.solvers.variational.PyramidCache`).
     blanked : ndarray, shape (H, W), bool, optional
-        Pixels the depth gate set to "no change" in both images: no data term on them,
+        Pixels the gates set to "no change" in both images: no data term on them,
         nor where a pixel's warped sample lands on them (the smoothness fills them in).
 
     Returns
