@@ -93,6 +93,14 @@ def test_the_chain_blanks_an_object_inside_the_band_with_the_gate_on() -> None:
     assert "object_motion_rejected" in on.summary.flags
     assert np.abs(off.diff_left[0][edge] - 0.5).max() > 0.1
     assert np.all(on.diff_left[0][edge] == 0.5)
+    # flow_drop_blanked reaches the flow: it changes it where something was blanked ...
+    dropped = compute_scene_flow(left, right, times, geo, dataclasses.replace(
+        base, opaque_gate_gas_k=285.0, flow_drop_blanked=True), ChainState())
+    assert not np.array_equal(dropped.flow, on.flow)
+    # ... and nothing where nothing was
+    same = compute_scene_flow(left, right, times, geo,
+                              dataclasses.replace(base, flow_drop_blanked=True), ChainState())
+    np.testing.assert_array_equal(same.flow, off.flow)
 
 
 def test_the_daemon_refuses_the_gate_without_radiometric_curves() -> None:
