@@ -93,14 +93,37 @@ def test_the_chain_blanks_an_object_inside_the_band_with_the_gate_on() -> None:
     assert "object_motion_rejected" in on.summary.flags
     assert np.abs(off.diff_left[0][edge] - 0.5).max() > 0.1
     assert np.all(on.diff_left[0][edge] == 0.5)
-    # flow_drop_blanked reaches the flow: it changes it where something was blanked ...
-    dropped = compute_scene_flow(left, right, times, geo, dataclasses.replace(
-        base, opaque_gate_gas_k=285.0, flow_drop_blanked=True), ChainState())
-    assert not np.array_equal(dropped.flow, on.flow)
-    # ... and nothing where nothing was
+    # flow_drop_blanked changes nothing where nothing was blanked
     same = compute_scene_flow(left, right, times, geo,
                               dataclasses.replace(base, flow_drop_blanked=True), ChainState())
     np.testing.assert_array_equal(same.flow, off.flow)
+
+
+def test_the_flow_drops_its_data_term_on_the_opaque_gates_pixels_and_on_the_rest_if_asked(
+        ) -> None:
+    """Which left pixels the flow has no data term on (driver._flow_blanked): the
+    opaque-edge gate's own always, the depth gate's with ``flow_drop_blanked``, cut to the
+    solvers' box."""
+    from processing.chain.driver import _flow_blanked
+    from processing.chain.region import Box
+
+    depth = np.zeros((8, 10), bool)
+    depth[1:3, 1:3] = True
+    both = depth.copy()
+    both[5:7, 6:9] = True  # what the opaque-edge gate added
+    right = np.zeros_like(depth)
+    plain, drop = ChainParameters(), ChainParameters(flow_drop_blanked=True)
+    assert _flow_blanked(None, None, plain, None) is None  # nothing blanked
+    depth_only = (depth, right)
+    assert _flow_blanked(depth_only, depth_only, plain, None) is None  # the depth gate's
+    np.testing.assert_array_equal(_flow_blanked(depth_only, depth_only, drop, None), depth)
+    np.testing.assert_array_equal(_flow_blanked((both, right), depth_only, plain, None),
+                                  both & ~depth)
+    np.testing.assert_array_equal(_flow_blanked((both, right), None, plain, None), both)
+    np.testing.assert_array_equal(_flow_blanked((both, right), depth_only, drop, None), both)
+    box = Box(y0=0, y1=8, x0=4, x1=10, shift=0)
+    np.testing.assert_array_equal(_flow_blanked((both, right), depth_only, plain, box),
+                                  (both & ~depth)[:, 4:10])
 
 
 def test_the_daemon_refuses_the_gate_without_radiometric_curves() -> None:

@@ -102,9 +102,11 @@ class ChainParameters:
     max_motion_px : int
         Largest image motion within a triple, px: how far the gate's masks grow.
     flow_drop_blanked : bool
-        The flow (Eq. 5) has no data term on the pixels the gates blanked nor where a
+        The flow (Eq. 5) has no data term on the pixels the depth gate blanked nor where a
         pixel's warped sample lands on them, as the joint solver (Eq. 6) has none; False
-        lets the blanked "no change" hold the flow beside it.
+        (the default: better on the wide matrix's development part, worse on its hold-out)
+        lets their "no change" hold the flow beside them. On the opaque-edge gate's pixels
+        the flow never has one.
     temporal_weight : float
         Share a in [0, 1) of the previous triple's d', carried along the flow, in this
         triple's d' (:mod:`processing.stereo.coherence`); 0 uses each triple alone (the paper).
