@@ -101,11 +101,11 @@ def test_the_chain_blanks_an_object_inside_the_band_with_the_gate_on() -> None:
 
 def test_the_flow_drops_its_data_term_on_the_opaque_gates_pixels_and_on_the_rest_if_asked(
         ) -> None:
-    """Which left pixels the flow has no data term on (driver._flow_blanked): the
+    """Which left pixels the flow has no data term on (region.flow_blanked): the
     opaque-edge gate's own always, the depth gate's with ``flow_drop_blanked``, cut to the
     solvers' box."""
-    from processing.chain.driver import _flow_blanked
     from processing.chain.region import Box
+    from processing.chain.region import flow_blanked as _flow_blanked
 
     depth = np.zeros((8, 10), bool)
     depth[1:3, 1:3] = True

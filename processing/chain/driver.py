@@ -45,6 +45,7 @@ from processing.chain.region import (
     Box,
     choose_region,
     crop_inputs,
+    flow_blanked,
     measured_area,
     paste_fields,
 )
@@ -149,7 +150,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
                                                  stream.change_history(follows))
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
-    flow = _flow(cl, params, cwarm, pyramids, _flow_blanked(blanked, depth_blanked, params, box))
+    flow = _flow(cl, params, cwarm, pyramids, flow_blanked(blanked, depth_blanked, params, box))
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
@@ -339,29 +340,6 @@ def _segment(area: np.ndarray | None, solved: np.ndarray | None, diff: np.ndarra
         return seg.mask, seg.phi
     # phi > 0 means gas: outside the area it is turned negative with the mask.
     return seg.mask & area, np.where(area, seg.phi, -np.abs(seg.phi) - np.float32(1e-3))
-
-
-def _flow_blanked(blanked: tuple[np.ndarray, np.ndarray] | None,
-                  depth_blanked: tuple[np.ndarray, np.ndarray] | None,
-                  params: ChainParameters, box: Box | None) -> np.ndarray | None:
-    """The left pixels (on the solvers' ``box``) where the flow has no data term: every
-    blanked one with ``params.flow_drop_blanked``, else those the opaque-edge gate added.
-
-    The opaque-edge gate blanks the moving edges of an object inside the gas's depth band:
-    thin static "no change" borders inside the plume, which held the gas's flow to a
-    fraction of its motion up to tens of pixels away (docs/evaluation-sceneflow.md).
-    """
-    if blanked is None:
-        return None
-    if params.flow_drop_blanked:
-        mask = blanked[0]
-    elif depth_blanked is None:
-        mask = blanked[0]  # only the opaque-edge gate blanked
-    elif blanked is depth_blanked:
-        return None  # the depth gate's alone
-    else:
-        mask = blanked[0] & ~depth_blanked[0]
-    return mask if box is None else np.ascontiguousarray(mask[box.left])
 
 
 def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,

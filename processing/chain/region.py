@@ -23,6 +23,7 @@ changes nothing but the coordinates.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -30,6 +31,9 @@ import numpy as np
 from processing.chain.state import WarmStart
 from processing.preprocess.differential import PreprocessedTriple
 from processing.segmentation.segment import robust_spread
+
+if TYPE_CHECKING:
+    from processing.chain.parameters import ChainParameters
 
 #: Contrast over the robust spread above which a pixel counts as active (the
 #: segmentation's own initial threshold, :func:`processing.segmentation.segment.initial_phi`).
@@ -225,3 +229,27 @@ def paste_fields(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarra
     full_dd = np.zeros(shape, np.float32)
     full_dd[box.left] = dd
     return full_flow, full_d, full_dd
+
+
+def flow_blanked(blanked: tuple[np.ndarray, np.ndarray] | None,
+                 depth_blanked: tuple[np.ndarray, np.ndarray] | None,
+                 params: ChainParameters, box: Box | None) -> np.ndarray | None:
+    """The left pixels (on the solvers' ``box``) where the flow has no data term: every
+    blanked one with ``params.flow_drop_blanked``, else those the opaque-edge gate added.
+
+    The opaque-edge gate blanks the moving edges of an object inside the gas's depth band:
+    thin static "no change" borders inside the plume, which held the gas's flow to a
+    fraction of its motion up to tens of pixels away (docs/evaluation-sceneflow.md).
+    """
+    if blanked is None:
+        return None
+    if params.flow_drop_blanked:
+        mask = blanked[0]
+    elif depth_blanked is None:
+        mask = blanked[0]  # only the opaque-edge gate blanked
+    elif blanked is depth_blanked:
+        # the opaque-edge gate hands the depth gate's masks back when it blanks nothing
+        return None
+    else:
+        mask = blanked[0] & ~depth_blanked[0]
+    return mask if box is None else np.ascontiguousarray(mask[box.left])
