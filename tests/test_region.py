@@ -13,8 +13,10 @@ from processing.chain.region import (
     bounding_box,
     choose_region,
     measured_area,
+    paste_fields,
     right_shift,
 )
+from processing.chain.state import WarmStart
 
 
 def test_bounding_box_grows_by_the_margin_and_snaps_outwards_to_the_grid() -> None:
@@ -55,6 +57,33 @@ def test_a_box_over_most_of_the_frame_means_the_whole_frame() -> None:
     box = choose_region((diff, diff), flow, d, small, margin_px=8, max_fraction=0.7)
     assert box is not None and box.fraction(shape) < 0.2
     assert box.mask(shape)[small].all()
+
+
+def test_the_next_start_keeps_the_motion_outside_the_box_the_result_does_not() -> None:
+    shape = (60, 80)
+    previous = WarmStart(flow=np.full((*shape, 2), -3.0, np.float32),
+                         disparity=np.full(shape, 30.0, np.float32),
+                         change=np.full(shape, 0.2, np.float32))
+    box = Box(20, 40, 16, 48, shift=10)
+    flow = np.full((20, 32, 2), -2.5, np.float32)
+    d = np.full((20, 32), 21.0, np.float32)  # the box's disparity, less its shift
+    dd = np.full((20, 32), 0.3, np.float32)
+    (r_flow, r_d, r_dd), (s_flow, s_d, s_dd) = paste_fields(box, flow, d, dd, previous)
+    inside = box.mask(shape)
+    for f, ch in ((r_flow, -2.5), (s_flow, -2.5)):
+        assert (f[inside] == ch).all()
+    assert (r_flow[~inside] == 0).all() and (r_dd[~inside] == 0).all()
+    # A box that grows next time starts its new pixels from their last motion, not from none.
+    assert (s_flow[~inside] == -3.0).all() and (s_dd[~inside] == np.float32(0.2)).all()
+    assert (r_d[inside] == 31.0).all() and (r_d[~inside] == 30.0).all()
+    assert s_d is r_d
+
+
+def test_without_a_box_the_fields_are_the_next_start() -> None:
+    flow = np.ones((8, 8, 2), np.float32)
+    d = np.ones((8, 8), np.float32)
+    measured, start = paste_fields(None, flow, d, d, None)
+    assert all(a is b for a, b in zip(measured, start, strict=True))
 
 
 @pytest.fixture(scope="module")

@@ -156,7 +156,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     clock.lap("disparity_init")
     d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history,
                        pyramids)
-    flow, d, dd = paste_fields(box, flow, d, dd, warm)
+    (flow, d, dd), start = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
     area = measured_area(d.shape, box, max(pl.border_px, pr.border_px))
     solved = None if box is None else box.mask(d.shape)
@@ -171,7 +171,8 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     # An implausible triple must not seed the next (a warm d' of -69 px lived ten triples).
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
-                  scene_change=cut or implausible, flow=flow, disparity=d, change=dd, mask=mask)
+                  scene_change=cut or implausible, flow=start[0], disparity=start[1],
+                  change=start[2], mask=mask)
     blocks = SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,

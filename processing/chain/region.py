@@ -214,12 +214,20 @@ def crop_inputs(box: Box | None, pl: PreprocessedTriple, pr: PreprocessedTriple,
 
 
 def paste_fields(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarray,
-                 warm: WarmStart | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whole-frame w_L (H, W, 2), d_L and d'_L (H, W), px, from the box's: outside it no
-    motion, the previous d_L (a start for the next triple, not a measurement: the chain
-    marks it invalid)."""
+                 warm: WarmStart | None
+                 ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray],
+                            tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Whole-frame w_L (H, W, 2), d_L and d'_L (H, W), px, from the box's, twice.
+
+    The triple's fields: outside the box no motion and the previous d_L (not a
+    measurement: the chain marks it invalid). The next triple's start: outside the box the
+    fields this triple started from, kept. A box that grows into pixels the previous one
+    left out then starts them from their last solved motion, not from none: from zero the
+    few warm levels did not catch up, and the gas's flow in the box read 0.79 of the
+    whole frame's (a development scene of the wide matrix, s43, ideal).
+    """
     if box is None:
-        return flow, d, dd
+        return (flow, d, dd), (flow, d, dd)
     assert warm is not None
     shape = warm.disparity.shape
     full_flow = np.zeros((*shape, 2), np.float32)
@@ -228,7 +236,11 @@ def paste_fields(box: Box | None, flow: np.ndarray, d: np.ndarray, dd: np.ndarra
     full_d[box.left] = d + np.float32(box.shift)
     full_dd = np.zeros(shape, np.float32)
     full_dd[box.left] = dd
-    return full_flow, full_d, full_dd
+    start_flow = np.array(warm.flow, np.float32, copy=True)
+    start_flow[box.left] = flow
+    start_dd = np.array(warm.change, np.float32, copy=True)
+    start_dd[box.left] = dd
+    return (full_flow, full_d, full_dd), (start_flow, full_d, start_dd)
 
 
 def flow_blanked(blanked: tuple[np.ndarray, np.ndarray] | None,
