@@ -164,7 +164,8 @@ def test_warm_times_report_the_region() -> None:
     assert st.times("warm_full").full_frame_calls == 2
     assert st.times("warm_full").solved_share == 1.0
     assert st.times("warm_full").box_share is None
-    no_region = bm.measure_stages(frames, runs=1, warmup=1)  # the default: region off
+    no_region = bm.measure_stages(frames, ChainParameters(active_region=False), runs=1,
+                                  warmup=1)
     assert no_region.warm_full is None
     with pytest.raises(ValueError, match="warm_full"):
         no_region.times("warm_full")

@@ -100,8 +100,8 @@ def keep_up_advice(image_size: tuple[int, int], binning: int, *,
         hints.append(f"bin the {w}x{h} cameras' pixels (processing.parameters.binning: 2, a "
                      "quarter of the chain's work)")
     hints.append("or trade accuracy for speed (processing.parameters: a coarser warm pyramid, "
-                 "fewer warm pyramid levels, the active region; docs/performance.md, "
-                 "benchmarks/configs/)")
+                 "fewer warm pyramid levels, with active_region on as by default; "
+                 "docs/performance.md, benchmarks/configs/)")
     return ", ".join(hints)
 
 

@@ -135,11 +135,12 @@ class ChainParameters:
         two frames of different moments paired.
     active_region : bool
         On a warm start, solve the flow and the disparities only inside the box around
-        the active pixels and the previous gas mask (:mod:`processing.chain.region`);
-        False (the default) solves the whole frame every time. Faster, but not free: on
-        the default robustness matrix all realistic reads 14.5 % / 14.9 deg instead of
-        8.3 / 9.9 and the false-gas share of the mask grows from 0.06 to 0.25 (ideal;
-        docs/performance.md).
+        the active pixels and the previous gas mask (:mod:`processing.chain.region`); a
+        cold start, a scene change and a box above ``region_max_fraction`` solve the whole
+        frame. True (the default): the warm solvers about a third cheaper on a plume of a
+        fifth of the frame, the robustness matrices within about a point of the whole
+        frame's, less false gas (docs/performance.md, the active region). False solves the
+        whole frame every time.
     region_margin_px : int
         Margin of that box around the active pixels, px.
     region_max_fraction : float
@@ -186,7 +187,7 @@ class ChainParameters:
     warm_start: bool = True
     cold_every: int = 30
     max_gas_speed_m_s: float = 30.0
-    active_region: bool = False
+    active_region: bool = True
     region_margin_px: int = 24
     region_max_fraction: float = 0.7
     flow_options: Mapping[str, Any] = field(default_factory=dict)
