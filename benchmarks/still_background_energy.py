@@ -122,16 +122,18 @@ def main(argv: list[str] | None = None) -> int:
                            np.nanmean(np.abs(res.flow[..., 1][keep])),
                            np.nanmean(np.abs(res.disparity_change[keep]))])
         rows.append(np.concatenate([rel_l, rel_r, motion]))
-        print(f"{i:6d}  {int(keep.sum()):6d}  {' '.join(f'{x:5.2f}' for x in rel_l)}  |  "
-              f"{' '.join(f'{x:5.2f}' for x in rel_r)}  |  "
-              f"{motion[0]:.3f}, {motion[1]:.3f}, {motion[2]:.3f}")
+        print(f"{i:6d}  {int(keep.sum()):6d}  {_row(rows[-1])}")
     if rows:
-        med = np.nanmedian(np.array(rows), axis=0)
-        n = len(SHIFTS_PX)
-        print(f"median          {' '.join(f'{x:5.2f}' for x in med[:n])}  |  "
-              f"{' '.join(f'{x:5.2f}' for x in med[n:2 * n])}  |  "
-              f"{med[-3]:.3f}, {med[-2]:.3f}, {med[-1]:.3f}")
+        print(f"median          {_row(np.nanmedian(np.array(rows), axis=0))}")
     return 0
+
+
+def _row(values: np.ndarray) -> str:
+    """A printed row: the left and the right camera's relative energies, then |u|, |v|, |d'|."""
+    n = len(SHIFTS_PX)
+    left = " ".join(f"{x:5.2f}" for x in values[:n])
+    right = " ".join(f"{x:5.2f}" for x in values[n:2 * n])
+    return f"{left}  |  {right}  |  {values[-3]:.3f}, {values[-2]:.3f}, {values[-1]:.3f}"
 
 
 if __name__ == "__main__":
