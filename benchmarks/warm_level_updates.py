@@ -5,11 +5,13 @@ Run from the repository root:
     PYTHONPATH=. python benchmarks/warm_level_updates.py [--triples N] [--config FILE]
         [--source {field,blob}]
 
-Runs the chain (default parameters, or a configuration file's ``processing.parameters``)
-on the bench input of ``ogiflow bench`` (the ``field`` plume at 320x240, cached) through
-one chain state, as a worker does, and records for every solver call of a warm triple the
-mean absolute change each pyramid level makes to its two unknowns - (u, v) for the flow
-(Eq. 5), (d, d') for the disparity (Eq. 6) - in pixels of the finest level. Prints, per
+Runs the chain (default parameters with the solvers on the whole frame, since the active
+region's box changes the levels' sizes from triple to triple; or a configuration file's
+``processing.parameters``) on the bench input of ``ogiflow bench`` (the ``field`` plume at
+320x240, cached) through one chain state, as a worker does, and records for every solver
+call of a warm triple the mean absolute change each pyramid level makes to its two unknowns -
+(u, v) for the flow (Eq. 5), (d, d') for the disparity (Eq. 6) - in pixels of the finest
+level. Prints, per
 solver and level, the median over the warm triples of that mean change and its 99th
 percentile over the pixels. A level that moves its fields by a few thousandths of a pixel
 buys little with its iterations; a coarse level that still moves them by tenths is where
@@ -85,7 +87,7 @@ def main() -> None:
     ap.add_argument("--source", choices=("field", "blob"), default="field",
                     help="the bench's input (default: the field plume)")
     args = ap.parse_args()
-    params = (ChainParameters() if args.config is None
+    params = (ChainParameters(active_region=False) if args.config is None
               else load_processing(args.config).chain_parameters({}))
     updates = measure(load_frames(args.source), params, args.triples)
     print("median over warm triples; changes in px of the finest level")
