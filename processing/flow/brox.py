@@ -209,9 +209,7 @@ def _drop_blanked_terms(usable: np.ndarray, u: np.ndarray, v: np.ndarray,
     h, w = usable.shape
     for y in range(h):
         for x in range(w):
-            xs = min(max(int(np.floor(x + u[y, x] + 0.5)), 0), w - 1)
-            ys = min(max(int(np.floor(y + v[y, x] + 0.5)), 0), h - 1)
-            if usable[y, x] == 0 or usable[ys, xs] == 0:
+            if usable[y, x] == 0 or pyramid.usable_at(usable, x + u[y, x], y + v[y, x]) == 0:
                 inputs[8, (x + y) & 1, y + 1, (x >> 1) + 1] = 0
 
 

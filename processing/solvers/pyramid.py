@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import cv2
+import numba
 import numpy as np
 
 
@@ -108,3 +109,13 @@ def usable_map(blanked: np.ndarray, shape: tuple[int, int], margin_px: int = 2) 
                       interpolation=cv2.INTER_AREA)
     bad = cv2.dilate((frac > 1e-3).astype(np.uint8), np.ones((k, k), np.uint8))
     return np.ascontiguousarray(1.0 - bad, dtype=np.float32)
+
+
+@numba.njit(inline="always")
+def usable_at(ok: np.ndarray, x: float, y: float) -> float:
+    """A :func:`usable_map` ``ok`` (H, W) at the nearest pixel to (x, y), clamped to the
+    image (a sample outside it is masked by the solvers' inside tests anyway)."""
+    h, w = ok.shape
+    xi = min(max(int(np.rint(x)), 0), w - 1)
+    yi = min(max(int(np.rint(y)), 0), h - 1)
+    return ok[yi, xi]

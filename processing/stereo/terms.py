@@ -115,16 +115,6 @@ def data_terms(
             o2[x] = c12 * rd0[x] + c22 * rdp0[x] + (q3 * re3[x] + q4 * re4[x]) * b
 
 
-@numba.njit(inline="always")
-def _usable_at(ok: np.ndarray, x: float, y: float) -> float:
-    """``ok`` (H, W) at the rounded position (x, y), clamped to the image (outside is
-    masked by the inside tests of the data terms anyway)."""
-    h, w = ok.shape
-    xi = min(max(int(np.rint(x)), 0), w - 1)
-    yi = min(max(int(np.rint(y)), 0), h - 1)
-    return ok[yi, xi]
-
-
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
 def split_residuals(
     il0: np.ndarray,
@@ -200,9 +190,9 @@ def split_residuals(
             m4 = in1 * in_l1
             if blanked:
                 l0 = ok_left[y, x]
-                l1 = _usable_at(ok_left, fx, fy)
-                r0 = _usable_at(ok_right, p0, fyr)
-                r1 = _usable_at(ok_right, p1, fy)
+                l1 = pyramid.usable_at(ok_left, fx, fy)
+                r0 = pyramid.usable_at(ok_right, p0, fyr)
+                r1 = pyramid.usable_at(ok_right, p1, fy)
                 m1 *= l0 * r0
                 m3 *= r0 * r1
                 m4 *= r1 * l1
