@@ -51,6 +51,7 @@ from appliance.evaluation.bench_input import (
     load_frames,
 )
 from appliance.memory import keep_freed_memory
+from appliance.runtime.imageshare import SharedImages, create_image_table
 from appliance.runtime.shiftshare import SharedShiftMemo, create_shift_table
 from appliance.runtime.workers import single_threaded
 from processing.chain import ChainParameters, ChainState, compute_scene_flow
@@ -256,11 +257,13 @@ class Throughput:
 
 
 def _worker(frames: BenchFrames, params: ChainParameters, seconds: float, warmup: int,
-            offset: int, stride: int, barrier: Any, results: Any, shift_table: Any) -> None:
+            offset: int, stride: int, barrier: Any, results: Any, shift_table: Any,
+            image_table: Any) -> None:
     """One throughput worker (spawned): warm up, wait for the others, run ``seconds``.
 
     It takes every ``stride``-th triple from ``offset`` on and shares registration shifts
-    with the other workers through ``shift_table``, as the daemon's workers do.
+    (``shift_table``), corrected frames and differential images (``image_table``, None for
+    one worker) with the other workers, as the daemon's workers do.
     """
     os.environ["NUMBA_NUM_THREADS"] = "1"  # before numba is first imported in this process
     os.environ["OMP_NUM_THREADS"] = "1"
@@ -268,7 +271,8 @@ def _worker(frames: BenchFrames, params: ChainParameters, seconds: float, warmup
 
     geo = geometry(frames.image_size)
     state = ChainState(stride=stride if stride in STRIDES else 1,
-                       shifts=SharedShiftMemo(shift_table))
+                       shifts=SharedShiftMemo(shift_table),
+                       images=None if image_table is None else SharedImages(image_table))
     triples = iter_triples(frames)
     for _ in range(offset):
         next(triples)
@@ -309,8 +313,12 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
     results = ctx.Queue()
     shift_table = create_shift_table(ctx)
     params = ChainParameters() if params is None else params
+    w, h = frames.image_size
+    k = params.binning
+    image_table = create_image_table(ctx, (h // k, w // k)) if workers > 1 else None
     procs = [ctx.Process(target=_worker, args=(frames, params, seconds, warmup, i, workers,
-                                               barrier, results, shift_table), daemon=True)
+                                               barrier, results, shift_table, image_table),
+                         daemon=True)
              for i in range(workers)]
     for p in procs:
         p.start()

@@ -20,6 +20,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
+from appliance.runtime.imageshare import create_image_table
 from appliance.runtime.keepup import peak_rss_mb
 from appliance.runtime.result_channel import ResultReceiver
 from appliance.runtime.ring import PairRing
@@ -95,6 +96,10 @@ class WorkerPool:
         self._results = ResultReceiver(self._mp)
         self._stop = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
+        # Only workers that alternate share frames and differences (one worker keeps its own).
+        k = self.params.binning
+        self._image_table = (create_image_table(self._mp, (h // k, w // k))
+                             if self.cfg.processing.workers > 1 else None)
         self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
         self.fields_wanted = self._mp.Value("b", 1, lock=False)
         stack.callback(self.stop)
@@ -114,7 +119,10 @@ class WorkerPool:
             log.error("worker %d exited (code %s); starting a new one", i, p.exitcode)
             self.counters.worker_restarts += 1
             # It may have died inside a critical section: the others would wait for ever.
-            for lock in (self.ring.reader_lock, self._shift_table.get_lock()):
+            locks = [self.ring.reader_lock, self._shift_table.get_lock()]
+            if self._image_table is not None:
+                locks.append(self._image_table.lock)
+            for lock in locks:
                 free_if_orphaned(lock, ORPHANED_LOCK_WAIT_S)
             self._workers[i] = self._start_worker(i)
 
@@ -152,7 +160,8 @@ class WorkerPool:
             p = self._mp.Process(target=worker_main, name=f"ogiflow-worker-{i}",
                                  args=(i, self.ring.handle(), (pipe, buffered), self._stop,
                                        self.geometry, self.params, n, self.emission,
-                                       self.sonic_k, self._shift_table, self.fields_wanted),
+                                       self.sonic_k, self._shift_table, self.fields_wanted,
+                                       self._image_table),
                                  daemon=True)
             p.start()
         return p

@@ -32,6 +32,7 @@ import numpy as np
 
 from appliance.memory import PeriodicTrim, keep_freed_memory
 from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
+from appliance.runtime.imageshare import SharedImages
 from appliance.runtime.result_channel import ResultSender
 from appliance.runtime.ring import PairRing
 from appliance.runtime.shiftshare import SharedShiftMemo
@@ -76,6 +77,7 @@ def worker_main(
     sonic_k: Any = None,
     shift_table: Any = None,
     fields_wanted: Any = None,
+    image_table: Any = None,
 ) -> None:
     """Body of one worker process; returns when ``stop`` (an Event) is set.
 
@@ -106,6 +108,9 @@ def worker_main(
         Set by the daemon when it wants the full fields (to record them, or a picture for
         the live view); the worker that packs the next result sends them and clears it.
         None: every result carries them.
+    image_table : ImageTable or None
+        Corrected frames and differential images shared by the workers
+        (:mod:`appliance.runtime.imageshare`); None: each worker computes its own.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     set_os_thread_name(f"ogiflow-worker{worker_id}")  # what top and ps show for the process
@@ -114,7 +119,7 @@ def worker_main(
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)
     worker = _Worker(worker_id, ring, n_workers, geometry, params, emission, sonic_k,
-                     shift_table, fields_wanted)
+                     shift_table, fields_wanted, image_table)
     trim = PeriodicTrim()
     sender = ResultSender(*results)
     try:
@@ -137,13 +142,15 @@ class _Worker:
     def __init__(self, worker_id: int, ring: PairRing, n_workers: int,
                  geometry: StereoGeometry | None, params: ChainParameters,
                  emission: EmissionSetup | None, sonic_k: Any, shift_table: Any,
-                 fields_wanted: Any) -> None:
+                 fields_wanted: Any, image_table: Any = None) -> None:
         self.worker_id, self.ring = worker_id, ring
         self.geometry, self.params = geometry, params
         self.emission, self.sonic_k, self.fields_wanted = emission, sonic_k, fields_wanted
         self.stride, self.phase = share_of_stream(worker_id, n_workers)
-        self.state = (ChainState(stride=self.stride) if shift_table is None
-                      else ChainState(stride=self.stride, shifts=SharedShiftMemo(shift_table)))
+        self.state = ChainState(
+            stride=self.stride,
+            **({} if shift_table is None else {"shifts": SharedShiftMemo(shift_table)}),
+            images=None if image_table is None else SharedImages(image_table))
         # In order (warm) while at most half the ring behind; more than two workers share
         # one phase and take the newest window.
         self.max_lag = ring.capacity // 2 if n_workers <= 2 else None

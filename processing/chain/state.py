@@ -23,7 +23,9 @@ next triple needs it on the t1 grid. When the triple left t1 where it was (its t
 is zero: no jitter, a rejected shift, registration off) the two are the same numbers, and
 the next triple takes D(t1) raw and denoised from here (:meth:`ChainState.known_differences`:
 one difference and one denoising less per camera, about 1.2 ms of a warm 320x240 triple);
-otherwise re-using it would cost an interpolation, and it is computed anew.
+otherwise re-using it would cost an interpolation, and it is computed anew. With two
+workers alternating, the other worker's triple left that difference: it comes through
+:attr:`ChainState.images` (:mod:`processing.chain.images`).
 
 A warm start is taken only when this triple follows the previous one of the same
 :class:`ChainState` exactly ``stride`` frames later, as proved by the shared capture times
@@ -42,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from processing.chain.images import ImageShare, difference_key
 from processing.chain.shifts import KnownShift, LocalShiftMemo, ShiftMemo
 from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile
@@ -108,7 +111,11 @@ class ChainState:
         Per camera: the key and the (raw, denoised) D(t1) of the last triple that left its
         t1 unmoved (:meth:`known_differences`).
     differences_reused : int
-        How many D(t0) came from ``differences`` instead of being computed again.
+        How many D(t0) came from ``differences`` or ``images`` instead of being computed
+        again.
+    images : ImageShare or None
+        Differential images shared with the other workers of the stream
+        (:mod:`processing.chain.images`); None: this state's own only.
     """
 
     stride: int = 1
@@ -128,6 +135,7 @@ class ChainState:
     differences: dict[int, tuple[DifferenceKey, tuple[np.ndarray, np.ndarray]]] = field(
         default_factory=dict)
     differences_reused: int = 0
+    images: ImageShare | None = None
 
     def __post_init__(self) -> None:
         if self.stride not in STRIDES:
@@ -244,24 +252,30 @@ class ChainState:
     def known_differences(self, times: Times, shift01: Sequence[tuple[float, float] | None],
                           settings: Hashable
                           ) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...]:
-        """Per camera (left, right): D(t0) raw and denoised when the previous triple
-        computed it as its D(t1), for ``diff0`` of
+        """Per camera (left, right): D(t0) raw and denoised when the previous triple (this
+        state's, or another worker's through ``images``) computed it as its D(t1), for
+        ``diff0`` of
         :func:`processing.preprocess.differential.preprocess_camera`.
 
         ``shift01`` are this triple's known t0 -> t1 shifts (None: not known, then nothing
         is reused) and ``settings`` whatever else the differences depend on (the gas
         radiance, the contrast floor, the denoising weight).
         """
-        out = []
+        out: list[tuple[np.ndarray, np.ndarray] | None] = []
         for cam in (0, 1):
             hit = self.differences.get(cam)
             s01 = shift01[cam]
-            if hit is not None and s01 is not None and hit[0] == (times[0], times[1],
-                                                                  s01, settings):
-                self.differences_reused += 1
-                out.append(hit[1])
-            else:
-                out.append(None)
+            found = None
+            if s01 is None:
+                pass
+            elif hit is not None and hit[0] == (times[0], times[1], s01, settings):
+                found = hit[1]
+            elif self.images is not None:
+                shared = self.images.get(difference_key(cam, times[0], times[1], s01,
+                                                        settings), 2)
+                found = None if shared is None else (shared[0], shared[1])
+            self.differences_reused += found is not None
+            out.append(found)
         return tuple(out)
 
     def remember_differences(self, times: Times, triples: Sequence[PreprocessedTriple],
@@ -273,6 +287,9 @@ class ChainState:
             if s01 == (0.0, 0.0) and pre.denoised1 is not None:
                 key = (times[1], times[2], s12, settings)
                 self.differences[cam] = (key, (pre.raw1, pre.denoised1))
+                if self.images is not None:
+                    self.images.put(difference_key(cam, times[1], times[2], s12, settings),
+                                    (pre.raw1, pre.denoised1))
             else:
                 self.differences.pop(cam, None)
 
