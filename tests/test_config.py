@@ -35,6 +35,15 @@ def test_site_example_is_valid_apart_from_its_calibration_path(tmp_path: Path) -
     assert cfg.calibration == cal
 
 
+@pytest.mark.parametrize("path", sorted((ROOT / "benchmarks" / "configs").glob("*.yaml")),
+                         ids=lambda p: p.name)
+def test_benchmark_configurations_load_as_ogiflow_run_loads_them(path: Path) -> None:
+    """Every file the docs pass to `--config` is a valid configuration whose chain
+    parameters differ from the defaults."""
+    cfg = C.load_config(path)
+    assert cfg.processing.chain_parameters() != C.Config().processing.chain_parameters()
+
+
 def test_site_example_documents_every_key() -> None:
     """Every key of the full config appears in the example with a comment above it."""
     text = (ROOT / "config" / "site.example.yaml").read_text()
