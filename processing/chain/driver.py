@@ -245,7 +245,8 @@ def _preprocess(left: Sequence[np.ndarray], right: Sequence[np.ndarray], times: 
                 scale: float, binning: int = 1) -> Pair:
     """Stage 1 (Sec. 4.1) for both cameras, each raw frame corrected (and binned) only once
     per stream."""
-    known = stream.known_shifts(times)
+    known = stream.known_shifts(times, params.registration_pause_after if params.register
+                                else 0)
     lg, contrast_floor = gas_radiance(params, geometry)
     # The corrected frames then go through pre-processing as they are (no curve, no maps).
     corrected = [

@@ -26,7 +26,8 @@ LOW_CONTRAST_RATIO = 6.0
 def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> list[str]:
     """Summary flags (:data:`processing.chain.summary.FLAGS`) of a stereo triple's pre-processing.
 
-    ``registration_rejected``: a jitter estimate was not applied (no static texture);
+    ``registration_rejected``: a jitter estimate was not applied (no static texture), or a
+    paused registration did not estimate a shift (``ChainParameters.registration_pause_after``);
     ``jitter_corrected``: a shift of at least :data:`JITTER_FLAG_PX` was removed;
     ``low_contrast``: :func:`contrast_ratio` of the left camera below
     :data:`LOW_CONTRAST_RATIO`.

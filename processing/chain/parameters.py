@@ -67,6 +67,12 @@ class ChainParameters:
         background) and not applied; the result counts them in ``rejected_shifts``. The
         shift between two frames is the difference of two independent jitters: with 0.3
         px per axis it exceeds 1 px in about 6 % of the pairs, hence 1.5.
+    registration_pause_after : int
+        After this many rejected shifts in a row of a camera (a background with no static
+        texture of its own: the fit follows the gas), its next shifts are not estimated but
+        taken as rejected, except every :data:`processing.chain.state.PROBE_EVERY`-th,
+        which is estimated; one applied shift ends the pause. A rejected estimate costs
+        1-2 ms at 320x240. 0: estimate every shift.
     gas_temperature_k : float or None
         Gas temperature in K (about the ambient air temperature). With radiometric curves
         in the geometry, the differential images become differential optical depth, free of
@@ -173,6 +179,7 @@ class ChainParameters:
     denoise_lambda: float = 2.0
     register: bool = True
     max_jitter_px: float = 1.5
+    registration_pause_after: int = 8
     gas_temperature_k: float | None = None
     min_contrast_k: float = 1.0
     depth_gate: bool = True
@@ -237,6 +244,11 @@ class ChainParameters:
         if not 0 < self.region_max_fraction <= 1:
             raise ValueError(f"region_max_fraction must be in (0, 1], "
                              f"got {self.region_max_fraction!r}")
+        if isinstance(self.registration_pause_after, bool) \
+                or not isinstance(self.registration_pause_after, int) \
+                or self.registration_pause_after < 0:
+            raise ValueError(f"registration_pause_after must be an integer >= 0, "
+                             f"got {self.registration_pause_after!r}")
         if isinstance(self.binning, bool) or not isinstance(self.binning, int) \
                 or not 1 <= self.binning <= MAX_BINNING:
             raise ValueError(f"binning must be an integer from 1 to {MAX_BINNING}, "

@@ -52,6 +52,10 @@ from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantil
 #: Strides whose succession the shared capture times can prove (see the module docstring).
 STRIDES = (1, 2)
 
+#: While the registration of a camera pauses (``ChainParameters.registration_pause_after``),
+#: one shift in this many is still estimated: at 30 Hz a probe every third of a second.
+PROBE_EVERY = 10
+
 #: A triple whose differential images ask for this many times the tracked normalisation
 #: scale is a scene change, not gas motion (measured: the simulated scene's loop jump asked
 #: for 4-9x, consecutive gas frames for 0.6-1.5x).
@@ -98,6 +102,11 @@ class ChainState:
         Registration shifts already estimated (this process's, or shared between workers).
     shifts_reused : int
         How many shifts came from ``shifts`` instead of being estimated.
+    rejected_run : dict
+        Per camera: how many of its shifts in a row were rejected (each shift counted once,
+        in capture order; :meth:`known_shifts` pauses the registration after enough).
+    shifts_paused : int
+        How many shifts were taken as rejected without an estimate (a paused registration).
     warm_starts, cold_starts : int
         How many calls started warm and cold (for the benchmark and the tests).
     warm_run : int
@@ -127,6 +136,10 @@ class ChainState:
     previous_times: Times | None = None
     shifts: ShiftMemo = field(default_factory=LocalShiftMemo)
     shifts_reused: int = 0
+    rejected_run: dict[int, int] = field(default_factory=dict)
+    shifts_paused: int = 0
+    _counted_until: dict[int, float] = field(default_factory=dict, repr=False)
+    _paused_for: dict[int, int] = field(default_factory=dict, repr=False)
     warm_starts: int = 0
     cold_starts: int = 0
     warm_run: int = 0
@@ -157,6 +170,9 @@ class ChainState:
         self.previous_times = None
         self.frames.clear()
         self.differences.clear()
+        self.rejected_run.clear()
+        self._counted_until.clear()
+        self._paused_for.clear()
 
     # -- normalisation scale -------------------------------------------------------------
 
@@ -223,13 +239,30 @@ class ChainState:
 
     # -- frames and shifts ---------------------------------------------------------------
 
-    def known_shifts(self, times: Times) -> tuple[tuple[KnownShift | None, KnownShift | None],
-                                                  ...]:
-        """Per camera (left, right): the t0 -> t1 and t1 -> t2 shifts already in the memo."""
-        out = tuple((self.shifts.get(cam, times[0], times[1]),
-                     self.shifts.get(cam, times[1], times[2])) for cam in (0, 1))
-        self.shifts_reused += sum(k is not None for pair in out for k in pair)
-        return out
+    def known_shifts(self, times: Times, pause_after: int = 0
+                     ) -> tuple[tuple[KnownShift | None, KnownShift | None], ...]:
+        """Per camera (left, right): the t0 -> t1 and t1 -> t2 shifts already in the memo,
+        or ((0, 0), rejected) for a shift not to be estimated because that camera's last
+        ``pause_after`` (> 0) shifts were rejected (every :data:`PROBE_EVERY`-th is
+        estimated all the same; the memo gets the paused ones, so that the other worker
+        agrees); None: to be estimated."""
+        out = []
+        for cam in (0, 1):
+            pair: list[KnownShift | None] = []
+            for k in (0, 1):
+                hit = self.shifts.get(cam, times[k], times[k + 1])
+                self.shifts_reused += hit is not None
+                if hit is None and pause_after > 0 \
+                        and self.rejected_run.get(cam, 0) >= pause_after:
+                    paused = self._paused_for.get(cam, 0)
+                    if paused < PROBE_EVERY - 1:
+                        hit = ((0.0, 0.0), True)
+                        self.shifts.put(cam, times[k], times[k + 1], *hit)
+                        self.shifts_paused += 1
+                    self._paused_for[cam] = 0 if hit is None else paused + 1
+                pair.append(hit)
+            out.append((pair[0], pair[1]))
+        return tuple(out)
 
     def remember_shifts(self, times: Times, known: Sequence[Sequence[KnownShift | None]],
                         estimated: Sequence[PreprocessedTriple]) -> list[PreprocessedTriple]:
@@ -245,6 +278,10 @@ class ChainState:
                 else:
                     self.shifts.put(cam, times[k], times[k + 1], pre.shifts[k],
                                     pre.rejected[k])
+                if times[k + 1] > self._counted_until.get(cam, -np.inf):
+                    self._counted_until[cam] = times[k + 1]
+                    self.rejected_run[cam] = self.rejected_run.get(cam, 0) + 1 \
+                        if rejected[k] else 0
             out.append(dataclasses.replace(pre, rejected_shifts=sum(rejected),
                                            rejected=(rejected[0], rejected[1])))
         return out
