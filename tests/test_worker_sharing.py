@@ -81,7 +81,7 @@ def test_two_workers_sharing_differences_give_identical_results(register: bool) 
 
     seq = sequence(9)
     params = dataclasses.replace(PARAMS, register=register, max_jitter_px=1e-6)
-    table = create_image_table(multiprocessing.get_context("spawn"), SIZE)
+    table = create_image_table(multiprocessing.get_context("spawn"), (SIZE[1], SIZE[0]))
     memo = LocalShiftMemo()
     together = [ChainState(stride=2, shifts=memo, images=SharedImages(table))
                 for _ in range(2)]
@@ -111,7 +111,7 @@ def test_shared_images_answer_the_exact_key_and_keep_the_newest() -> None:
         return difference_key(camera, t, t + 1.0, (0.0, 0.0), settings)
 
     ctx = multiprocessing.get_context("spawn")
-    table = create_image_table(ctx, (4, 5))
+    table = create_image_table(ctx, (5, 4))  # W x H
     share = SharedImages(table)
     a = np.arange(20, dtype=np.float32).reshape(4, 5)
     share.put(key(0, 1.0), (a, a + 1))

@@ -313,9 +313,8 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
     results = ctx.Queue()
     shift_table = create_shift_table(ctx)
     params = ChainParameters() if params is None else params
-    w, h = frames.image_size
-    k = params.binning
-    image_table = create_image_table(ctx, (h // k, w // k)) if workers > 1 else None
+    image_table = (create_image_table(ctx, frames.image_size, params.binning) if workers > 1
+                   else None)
     procs = [ctx.Process(target=_worker, args=(frames, params, seconds, warmup, i, workers,
                                                barrier, results, shift_table, image_table),
                          daemon=True)

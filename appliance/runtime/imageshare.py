@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from processing.chain.binning import binned_size
 from processing.chain.images import KEY_LENGTH, ImageKey
 
 #: Slots of the table: each triple offers one difference per camera, the other worker wants
@@ -48,13 +49,15 @@ class ImageTable:
         return self.header.get_lock()
 
 
-def create_image_table(ctx: Any, shape: tuple[int, int], slots: int = SLOTS) -> ImageTable:
-    """A table for images of ``shape`` (H, W), the chain's size (the cameras' divided by the
-    binning); ``ctx`` a multiprocessing context. Takes slots x 2 x H x W x 4 bytes (4.9 MB
-    at 320x240)."""
-    h, w = (int(shape[0]), int(shape[1]))
+def create_image_table(ctx: Any, image_size: tuple[int, int], binning: int = 1,
+                       slots: int = SLOTS) -> ImageTable:
+    """A table for the images the chain works on with cameras of ``image_size`` (W, H) and
+    ``binning`` (:func:`processing.chain.binning.binned_size`); ``ctx`` a multiprocessing
+    context. Takes slots x 2 x H x W x 4 bytes (4.9 MB at 320x240)."""
+    w, h = binned_size(image_size, binning)
     if h < 1 or w < 1 or slots < 1:
-        raise ValueError(f"need a positive image shape and slot count, got {shape}, {slots}")
+        raise ValueError(f"need a positive image size and slot count, got {image_size} "
+                         f"binned {binning}, {slots}")
     header = ctx.Array("d", [0.0] * (slots * _HEADER), lock=ctx.Lock())
     data = ctx.RawArray("f", slots * PER_SLOT * h * w)
     return ImageTable(header, data, (h, w))

@@ -97,8 +97,7 @@ class WorkerPool:
         self._stop = self._mp.Event()
         self._shift_table = create_shift_table(self._mp)
         # Only workers that alternate share frames and differences (one worker keeps its own).
-        k = self.params.binning
-        self._image_table = (create_image_table(self._mp, (h // k, w // k))
+        self._image_table = (create_image_table(self._mp, self.image_size, self.params.binning)
                              if self.cfg.processing.workers > 1 else None)
         self.sonic_k = self._mp.Value("d", float("nan"), lock=False)
         self.fields_wanted = self._mp.Value("b", 1, lock=False)

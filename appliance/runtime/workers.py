@@ -109,7 +109,7 @@ def worker_main(
         the live view); the worker that packs the next result sends them and clears it.
         None: every result carries them.
     image_table : ImageTable or None
-        Corrected frames and differential images shared by the workers
+        Differential images shared by the workers
         (:mod:`appliance.runtime.imageshare`); None: each worker computes its own.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")

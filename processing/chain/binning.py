@@ -28,8 +28,14 @@ from processing.chain.summary import GasSummary
 from processing.preprocess.binning import bin_image, check_binning
 from processing.stereo_geometry import StereoGeometry
 
-__all__ = ["bin_image", "binned_geometry", "binned_parameters", "block_of",
+__all__ = ["bin_image", "binned_geometry", "binned_parameters", "binned_size", "block_of",
            "check_binning", "grow", "upsampled_result", "upsampled_summary"]
+
+
+def binned_size(image_size: tuple[int, int], k: int) -> tuple[int, int]:
+    """(W, H) of the images the chain works on for cameras of ``image_size`` (W, H), px,
+    with ``binning`` k: whole k x k blocks."""
+    return image_size[0] // k, image_size[1] // k
 
 
 def binned_geometry(geometry: StereoGeometry, k: int) -> StereoGeometry:
@@ -47,7 +53,7 @@ def binned_geometry(geometry: StereoGeometry, k: int) -> StereoGeometry:
     return dataclasses.replace(
         geometry, camera_constant=geometry.camera_constant / k,
         principal_point=((x0 - half) / k, (y0 - half) / k),
-        image_size=(w // k, h // k), maps_left=None, maps_right=None)
+        image_size=binned_size((w, h), k), maps_left=None, maps_right=None)
 
 
 def binned_parameters(params: ChainParameters) -> ChainParameters:

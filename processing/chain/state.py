@@ -303,11 +303,10 @@ class ChainState:
             hit = self.differences.get(cam)
             s01 = shift01[cam]
             found = None
-            if s01 is None:
-                pass
-            elif hit is not None and hit[0] == (times[0], times[1], s01, settings):
+            if s01 is not None and hit is not None \
+                    and hit[0] == (times[0], times[1], s01, settings):
                 found = hit[1]
-            elif self.images is not None:
+            elif s01 is not None and self.images is not None:
                 shared = self.images.get(difference_key(cam, times[0], times[1], s01,
                                                         settings), 2)
                 found = None if shared is None else (shared[0], shared[1])
