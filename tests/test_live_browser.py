@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from tests.chromium import ARGS, CHROMIUM, screenshot
 from tests.conftest import SMALL_SCENE
 from tests.mosquitto import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = "/usr/bin/chromium"
 # Frames per second the page draws, counted over 5 s of requestAnimationFrame callbacks.
 UI_FPS_JS = """new Promise(done => {
   let n = 0; const t0 = performance.now();
@@ -39,8 +39,6 @@ UI_FPS_JS = """new Promise(done => {
   }
   requestAnimationFrame(tick);
 })"""
-ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--ignore-gpu-blocklist"]
 TITLES = ("gas camera", "status", "emission rate", "leak events")
 
 
@@ -121,7 +119,7 @@ def test_operator_view_renders_in_chromium(tmp_path: Path, scene_cache: Path) ->
             drawn = False
             while time.monotonic() < deadline and proc.poll() is None:
                 time.sleep(2.0)
-                page.screenshot(path=str(shot))
+                screenshot(page, shot)
                 text = ocr(shot).lower()
                 img = np.asarray(_read_png(shot), np.float32)
                 ir = img[100:650, 20:780]  # the IR picture's panel
@@ -135,7 +133,7 @@ def test_operator_view_renders_in_chromium(tmp_path: Path, scene_cache: Path) ->
             for _ in range(8 if drawn else 0):
                 time.sleep(1.0)
                 t_shot = time.time()
-                page.screenshot(path=str(tmp_path / "age.png"))
+                screenshot(page, tmp_path / "age.png")
                 age = shown_frame_age_s(ocr_status(tmp_path / "age.png").lower(), t_shot)
                 if age is not None:
                     ages.append(age)

@@ -38,13 +38,11 @@ import pytest
 from appliance.config import load_config
 from appliance.page.server import PageServer
 from appliance.runtime.daemon import Appliance
+from tests.chromium import ARGS, CHROMIUM, screenshot
 from tests.conftest import SMALL_SCENE
 from tests.mosquitto import Broker, Subscriber
 
 ROOT = Path(__file__).resolve().parents[1]
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--ignore-gpu-blocklist"]
 #: Samples of leak state and frame age, SAMPLE_S apart (30 s).
 SAMPLES, SAMPLE_S = 120, 0.25
 #: Results before the phone tab opens (pictures flow, the workers are warm by then).
@@ -127,7 +125,7 @@ def _drive(app: Appliance, sub: Subscriber, out: dict[str, Any], tmp: Path) -> N
                 time.sleep(SAMPLE_S)
             out["samples"] = samples
             phases.append(("sampled", round(time.monotonic() - t0, 1)))
-            desk.screenshot(path=str(tmp / "page.png"))
+            screenshot(desk, tmp / "page.png")
             out["clients"] = json.loads(subprocess.run(
                 [sys.executable, "-m", "benchmarks.page_clients", "load", url, "--clients",
                  str(CLIENTS), "--frames", str(CLIENT_FRAMES), "--stall-s", "60",
@@ -163,7 +161,7 @@ def _phone(browser: Any, url: str, out: dict[str, Any], tmp: Path) -> None:
       return {scroll_w: document.documentElement.scrollWidth, inner_w: window.innerWidth,
               state: box("leak-state"), picture: box("picture"), age: box("frame-age")};
     }""")
-    phone.screenshot(path=str(tmp / "phone.png"))
+    screenshot(phone, tmp / "phone.png")
     phone.close()
 
 
