@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from processing.chain.images import ImageShare, difference_key
+from processing.chain.images import ImageKey, ImageShare, difference_key
 from processing.chain.shifts import KnownShift, LocalShiftMemo, ShiftMemo
 from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile
@@ -62,9 +62,6 @@ PROBE_EVERY = 10
 SCENE_CHANGE_FACTOR = 3.0
 
 Times = tuple[float, float, float]
-#: What a kept differential image was computed from: the capture times of its two frames,
-#: the shift applied to the later one, px, and the settings it depends on.
-DifferenceKey = tuple[float, float, tuple[float, float], Hashable]
 
 
 @dataclass(frozen=True)
@@ -117,8 +114,9 @@ class ChainState:
     frames_reused : int
         How many frames came from ``frames`` instead of being corrected again.
     differences : dict
-        Per camera: the key and the (raw, denoised) D(t1) of the last triple that left its
-        t1 unmoved (:meth:`known_differences`).
+        Per camera: the key (:func:`processing.chain.images.difference_key`, as in
+        ``images``) and the (raw, denoised) D(t1) of the last triple that left its t1
+        unmoved (:meth:`known_differences`).
     differences_reused : int
         How many D(t0) came from ``differences`` or ``images`` instead of being computed
         again.
@@ -145,7 +143,7 @@ class ChainState:
     warm_run: int = 0
     frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
     frames_reused: int = 0
-    differences: dict[int, tuple[DifferenceKey, tuple[np.ndarray, np.ndarray]]] = field(
+    differences: dict[int, tuple[ImageKey, tuple[np.ndarray, np.ndarray]]] = field(
         default_factory=dict)
     differences_reused: int = 0
     images: ImageShare | None = None
@@ -300,16 +298,16 @@ class ChainState:
         """
         out: list[tuple[np.ndarray, np.ndarray] | None] = []
         for cam in (0, 1):
-            hit = self.differences.get(cam)
             s01 = shift01[cam]
             found = None
-            if s01 is not None and hit is not None \
-                    and hit[0] == (times[0], times[1], s01, settings):
-                found = hit[1]
-            elif s01 is not None and self.images is not None:
-                shared = self.images.get(difference_key(cam, times[0], times[1], s01,
-                                                        settings), 2)
-                found = None if shared is None else (shared[0], shared[1])
+            if s01 is not None:
+                key = difference_key(cam, times[0], times[1], s01, settings)
+                hit = self.differences.get(cam)
+                if hit is not None and hit[0] == key:
+                    found = hit[1]
+                elif self.images is not None:
+                    shared = self.images.get(key, 2)
+                    found = None if shared is None else (shared[0], shared[1])
             self.differences_reused += found is not None
             out.append(found)
         return tuple(out)
@@ -321,11 +319,10 @@ class ChainState:
         for cam, pre in enumerate(triples):
             s01, s12 = pre.shifts
             if s01 == (0.0, 0.0) and pre.denoised1 is not None:
-                key = (times[1], times[2], s12, settings)
+                key = difference_key(cam, times[1], times[2], s12, settings)
                 self.differences[cam] = (key, (pre.raw1, pre.denoised1))
                 if self.images is not None:
-                    self.images.put(difference_key(cam, times[1], times[2], s12, settings),
-                                    (pre.raw1, pre.denoised1))
+                    self.images.put(key, (pre.raw1, pre.denoised1))
             else:
                 self.differences.pop(cam, None)
 
