@@ -69,11 +69,16 @@ class StereoGeometry:
         )
 
     @classmethod
-    def from_synthetic_camera(cls, cam: Mapping[str, Any]) -> StereoGeometry:
+    def from_synthetic_camera(cls, cam: Mapping[str, Any],
+                              counts: Mapping[str, Mapping[str, float]] | None = None
+                              ) -> StereoGeometry:
         """Geometry of a synthetic sequence's ideal, rectified camera pair.
 
         ``cam`` is the ``camera`` entry of a sequence's ``meta.json`` (``s_px``, ``cx_px``,
-        ``cy_px``, ``b_m``, ``width``, ``height``, optional ``k1``/``k2``).
+        ``cy_px``, ``b_m``, ``width``, ``height``, optional ``k1``/``k2``); ``counts`` its
+        ``counts_model`` (``left`` and ``right``, each ``gain`` and ``offset``: counts =
+        offset + gain L), given as the characteristic curves a radiometric calibration of
+        those cameras would hold (None: no curves, counts used as they are).
 
         Raises
         ------
@@ -85,7 +90,11 @@ class StereoGeometry:
             raise ValueError(
                 f"the synthetic cameras have lens distortion (k1={cam.get('k1')}, "
                 f"k2={cam.get('k2')}); use the matching calibration file instead")
+        curves = (None, None) if counts is None else tuple(
+            CharacteristicCurve(offset=float(counts[side]["offset"]),
+                                gain=float(counts[side]["gain"])) for side in ("left", "right"))
         return cls(camera_constant=float(cam["s_px"]),
                    principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
                    baseline=float(cam["b_m"]),
-                   image_size=(int(cam["width"]), int(cam["height"])))
+                   image_size=(int(cam["width"]), int(cam["height"])),
+                   curve_left=curves[0], curve_right=curves[1])

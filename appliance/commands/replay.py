@@ -57,13 +57,12 @@ def register(root: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # Imported when the command runs: the CLI imports every command module for its parser.
-    from appliance.reprocess.segments import cut_segments, process_into
+    from appliance.reprocess.segments import cut_segments, process_into, replay_parameters
     from appliance.reprocess.sink import McapSink
     from appliance.reprocess.source import (
         PairStream,
         Recording,
         load_geometry,
-        load_parameters,
         parse_override,
     )
     from appliance.runtime.workers import single_threaded
@@ -77,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fields-every must be >= 1, got {args.fields_every}")
     geometry = load_geometry(rec.meta, args.calibration)
     overrides = {k: yaml.safe_load(v) for k, v in map(parse_override, args.param)}
-    params = load_parameters(rec.meta, overrides)
+    params = replay_parameters(rec, overrides)
     segments = [cut_segments([], None)[0]]
     if args.segment_s is not None:
         segments = cut_segments([p.time_ns for _i, p in PairStream(rec)], args.segment_s)

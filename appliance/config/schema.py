@@ -130,15 +130,29 @@ class ProcessingConfig:
     parameters: dict[str, Any] = _opt(
         "parameters passed to the processing chain as they are (checked by it)", factory=dict,
     )
+    opaque_gate: bool = _opt(
+        "remove the moving edges of warm objects at the gas's depth (the opaque-edge gate) "
+        "at the site's gas temperature, taken anew every triple: emission.gas_temperature_k, "
+        "else the anemometer's sonic temperature, 288.15 K until it reports one; needs "
+        "radiometric curves (parameters.opaque_gate_gas_k is the same gate at one fixed "
+        "temperature: not both)", False)
 
-    def chain_parameters(self, defaults: Mapping[str, Any] | None = None) -> Any:
+    def chain_parameters(self, defaults: Mapping[str, Any] | None = None, *,
+                         site: bool = False) -> Any:
         """The scene-flow chain's parameters (:class:`processing.chain.ChainParameters`):
         ``defaults`` (what the scene implies, e.g. a simulated site's or a sequence's gas
         depth band) with this section's ``parameters`` over them. The one place the daemon
         and the evaluations build them, so an evaluation runs what ``ogiflow run`` runs.
-        An unknown or invalid key raises ValueError naming it."""
+        An unknown or invalid key raises ValueError naming it; so does ``opaque_gate``
+        unless for a ``site`` (the daemon, which sets the gate's temperature itself): an
+        evaluated sequence has no anemometer."""
         from processing.chain import ChainParameters
 
+        if self.opaque_gate and not site:
+            raise ValueError(
+                "processing.opaque_gate takes a site's gas temperature (`ogiflow run` and its "
+                "replays); for an evaluation give the sequence's as processing.parameters."
+                "opaque_gate_gas_k (the simulated scenes': 285 K)")
         return ChainParameters.from_mapping({**(defaults or {}), **self.parameters})
 
 

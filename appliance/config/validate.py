@@ -144,6 +144,10 @@ def _check_processing(cfg: Config, errors: list[str]) -> None:
     except (ValueError, TypeError) as exc:
         errors.append(f"processing.parameters: {exc}")
         return
+    if cfg.processing.opaque_gate and params.opaque_gate_gas_k is not None:
+        errors.append("processing.opaque_gate: the gate at the site's gas temperature and "
+                      "processing.parameters.opaque_gate_gas_k (the gate at a fixed one) "
+                      "are both set; keep one")
     size = _stereo_image_size(cfg) if params.binning > 1 else None
     if size is not None:
         from processing.chain.binning import check_binning

@@ -35,9 +35,17 @@ def processing_metadata(geometry: StereoGeometry, params: ChainParameters
                         ) -> dict[str, dict[str, str]]:
     """MCAP metadata records that let ``ogiflow replay`` reprocess a file as it was run:
     the geometry of Eq. 4 (``geometry``) and the chain parameters (``processing``)."""
-    geo = {"camera_constant": geometry.camera_constant,
-           "principal_point": list(geometry.principal_point), "baseline": geometry.baseline,
-           "image_size": list(geometry.image_size),
-           "rectified": geometry.maps_left is None and geometry.maps_right is None}
+    geo: dict[str, object] = {
+        "camera_constant": geometry.camera_constant,
+        "principal_point": list(geometry.principal_point), "baseline": geometry.baseline,
+        "image_size": list(geometry.image_size),
+        "rectified": geometry.maps_left is None and geometry.maps_right is None}
+    # The curves of a site without a calibration file (the simulated cameras'): a replay
+    # then corrects counts as the run did.
+    for side, curve in (("left", geometry.curve_left), ("right", geometry.curve_right)):
+        if curve is not None:
+            geo[f"curve_{side}"] = {"offset": curve.offset, "gain": curve.gain,
+                                    "curvature": curve.curvature,
+                                    "band_m": list(curve.band_m)}
     return {"geometry": {"json": json.dumps(geo)},
             "processing": {"json": json.dumps(dataclasses.asdict(params), default=str)}}

@@ -27,8 +27,15 @@ from typing import Any
 
 import numpy as np
 
-from appliance.reprocess.source import PairStream, Recording, read_wind, wind_history
+from appliance.reprocess.source import (
+    PairStream,
+    Recording,
+    load_parameters,
+    read_wind,
+    wind_history,
+)
 from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
+from appliance.runtime.gas_temperature import GateTemperature
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.worker_result import WorkerResult, pack_result
 from appliance.runtime.workers import compute_scene_flow_on
@@ -313,3 +320,32 @@ def recorded_emission(meta: Any, config: dict[str, Any],
     settings = EmissionSettings(gas=gas, pressure_pa=float(em.get("pressure_pa", 101325.0)),
                                 background_frames=int(em.get("background_frames", 60)))
     return EmissionSetup(settings, None if t_gas is None else float(t_gas))
+
+
+def recorded_gas_temperature_k(emission: Any, config: dict[str, Any],
+                               wind: Sequence[dict[str, Any]]) -> float | None:
+    """The gas temperature of a recording, K: the configured (or simulated scene's) one of
+    its emission settings, else the median of its sonic temperatures; None: neither."""
+    configured = (emission.gas_temperature_k if emission is not None
+                  else (config.get("emission", {}) or {}).get("gas_temperature_k"))
+    if configured is not None:
+        return float(configured)
+    sonic = [m["sonic_temperature_c"] for m in wind if m.get("sonic_temperature_c") is not None]
+    return float(np.median(sonic)) + 273.15 if sonic else None
+
+
+def replay_parameters(rec: Recording, overrides: dict[str, Any]) -> ChainParameters:
+    """The chain parameters to reprocess ``rec`` with: the recorded ones with ``overrides``
+    (:func:`appliance.reprocess.source.load_parameters`); a recording that ran the
+    opaque-edge gate at the site's gas temperature (``processing.opaque_gate``) gets the
+    gate at the recording's (:func:`recorded_gas_temperature_k`; 15 degC without one) -
+    one value for the whole file where the live run took each moment's - unless an
+    override sets ``opaque_gate_gas_k``."""
+    params = load_parameters(rec.meta, overrides)
+    if not (rec.config.get("processing", {}) or {}).get("opaque_gate") \
+            or "opaque_gate_gas_k" in overrides:
+        return params
+    wind = read_wind(rec.path)
+    t_gas = recorded_gas_temperature_k(recorded_emission(rec.meta, rec.config, wind),
+                                       rec.config, wind)
+    return GateTemperature(t_gas).parameters(params)

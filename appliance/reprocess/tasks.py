@@ -14,13 +14,12 @@ from typing import Any
 
 from appliance.recording.tables import SUMMARY_COLUMNS, summary_row, write_parquet
 from appliance.reprocess.jobs import Job
-from appliance.reprocess.segments import Segment, cut_segments, process_into
+from appliance.reprocess.segments import Segment, cut_segments, process_into, replay_parameters
 from appliance.reprocess.sink import McapSink
 from appliance.reprocess.source import (
     PairStream,
     Recording,
     load_geometry,
-    load_parameters,
     read_wind,
 )
 from appliance.runtime.workers import single_threaded
@@ -67,7 +66,7 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     t0 = time.monotonic()
     rec = Recording.open(job.input)
     geometry = load_geometry(rec.meta, job.calibration)
-    params = load_parameters(rec.meta, job.overrides)
+    params = replay_parameters(rec, dict(job.overrides))
     sink = McapSink(mcap_path, {})
     segment = Segment(index, first, stop)
     try:
@@ -89,7 +88,7 @@ def merge_task(job: Job, n_segments: int, seg_dir: Path, output: Path) -> dict[s
     """Write the job's output: metadata, raw wind, then every segment's messages in order."""
 
     rec = Recording.open(job.input)
-    params = load_parameters(rec.meta, job.overrides)
+    params = replay_parameters(rec, dict(job.overrides))
     sink = McapSink(output, rec.output_metadata(params, job.segment_s))
     try:
         sink.record_wind(read_wind(job.input), rec.wall_offset_ns)

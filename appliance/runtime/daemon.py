@@ -44,6 +44,7 @@ from appliance.runtime.acquisition import Acquisition, Counters, camera_watch, n
 from appliance.runtime.banner import announce_end, announce_start
 from appliance.runtime.counters import health_counters
 from appliance.runtime.emission_setup import emission_setup
+from appliance.runtime.gas_temperature import GateTemperature, configured_gas_temperature_k
 from appliance.runtime.health import (
     HealthMonitor,
     HealthReporter,
@@ -137,7 +138,10 @@ class Appliance:
         if self.cfg.calibration is not None:
             return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
         if self.site is not None and self.site.truth is not None:
-            return StereoGeometry.from_synthetic_camera(self.site.truth.camera)
+            # The simulated cameras' counts models as their radiometric curves, as a
+            # calibrated site has them (the opaque-edge gate needs radiance).
+            return StereoGeometry.from_synthetic_camera(
+                self.site.truth.camera, self.site.truth.meta["counts_model"])
         if self.cfg.cameras.right is None:
             return None
         raise ValueError(
@@ -258,7 +262,11 @@ class Appliance:
         defaults = ({} if self.geometry is None else
                     self.site.chain_defaults(self.geometry.camera_constant,
                                              self.geometry.baseline))
-        self.params = cfg.processing.chain_parameters(defaults)
+        self.params = cfg.processing.chain_parameters(defaults, site=True)
+        self.gate = (GateTemperature(configured_gas_temperature_k(cfg, self.site.truth))
+                     if cfg.processing.opaque_gate else None)
+        if self.gate is not None:  # at the start's temperature; each worker follows it
+            self.params = self.gate.parameters(self.params)
         check_radiometry(self.params, self.geometry)
         self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning,
                                               rendering=self.site.background is not None)
@@ -286,7 +294,7 @@ class Appliance:
         """The shared-memory ring, the worker processes and the thread that takes results."""
         self.pool = WorkerPool(self.cfg, self.geometry, self.image_size, self.params,
                                self.emission, self._handle_result,
-                               self.counters).start(stack, self._spawn)
+                               self.counters, self.gate).start(stack, self._spawn)
         self.ring = self.pool.ring
         self.publisher.fields_wanted = self.pool.fields_wanted
         stack.callback(self._note_peak_rss)  # runs before the pool stops its workers
@@ -432,8 +440,10 @@ class Appliance:
 
 def check_radiometry(params: ChainParameters, geometry: StereoGeometry | None) -> None:
     """ConfigError (exit 2, before any device opens) when a chain setting needs the
-    cameras' radiometric curves and the site has none: the opaque-edge gate."""
+    cameras' radiometric curves and the site has none: the opaque-edge gate
+    (``processing.opaque_gate`` sets ``opaque_gate_gas_k`` before this check)."""
     if params.opaque_gate_gas_k is not None and (
             geometry is None or geometry.curve_left is None or geometry.curve_right is None):
-        raise ConfigError(["processing.parameters.opaque_gate_gas_k: needs both cameras' "
-                           "radiometric curves (a calibration with characteristic curves)"])
+        raise ConfigError(["processing.opaque_gate / processing.parameters.opaque_gate_gas_k: "
+                           "the opaque-edge gate needs both cameras' radiometric curves (a "
+                           "stereo calibration with characteristic curves)"])

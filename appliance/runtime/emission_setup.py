@@ -14,11 +14,14 @@ from typing import Any
 
 import numpy as np
 
+from appliance.runtime.gas_temperature import (
+    configured_gas_temperature_k,
+    site_gas_temperature_k,
+)
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.binning import binned_geometry
 from processing.chain.driver import SceneFlowResult, StereoGeometry
 from processing.emission.estimator import (
-    DEFAULT_GAS_TEMPERATURE_K,
     TUNED_WIDTH_PX,
     EmissionEstimator,
     EmissionSettings,
@@ -86,11 +89,9 @@ class EmissionSetup:
                                  geometry.camera_constant, curve, binning)
 
     def temperature_k(self, sonic_k: Any = None) -> float:
-        """The gas temperature now: configured, else the sonic one, else 15 degC."""
-        if self.gas_temperature_k is not None:
-            return self.gas_temperature_k
-        t = float("nan") if sonic_k is None else float(sonic_k.value)
-        return t if np.isfinite(t) and 150.0 < t < 400.0 else DEFAULT_GAS_TEMPERATURE_K
+        """The gas temperature now: configured, else the sonic one, else 15 degC
+        (:func:`appliance.runtime.gas_temperature.site_gas_temperature_k`)."""
+        return site_gas_temperature_k(self.gas_temperature_k, sonic_k)
 
 
 #: The rate of a frame when the cameras have no radiometric calibration.
@@ -130,7 +131,7 @@ def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
     if not em.enabled:
         return None
     gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
-    curve, t_gas = None, em.gas_temperature_k
+    curve, t_gas = None, configured_gas_temperature_k(cfg, truth)
     if truth is not None:
         counts = truth.meta["counts_model"]["left"]
         curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
@@ -138,10 +139,6 @@ def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
         if em.gas_file is None:
             gas = dataclasses.replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),
                                       source="the simulated scene's")
-        if t_gas is None:
-            # The simulated anemometer's sonic temperature is not the scene's gas
-            # temperature (the renderer's plume is colder than the air around it).
-            t_gas = float(rad["t_gas_k"])
     return EmissionSetup(EmissionSettings(gas=gas, pressure_pa=em.pressure_pa,
                                           background_frames=em.background_frames,
                                           typed_distance_m=em.single_camera_distance_m),

@@ -20,6 +20,7 @@ import numpy as np
 
 from appliance.config import Config
 from appliance.runtime.acquisition import Counters
+from appliance.runtime.gas_temperature import GateTemperature
 from appliance.runtime.imageshare import create_image_table
 from appliance.runtime.keepup import peak_rss_mb
 from appliance.runtime.result_channel import ResultReceiver
@@ -59,21 +60,25 @@ class WorkerPool:
         is logged and the next result taken.
     counters : Counters
         The run's counters (``worker_restarts``).
+    gate : GateTemperature or None
+        The opaque-edge gate at the site's gas temperature, set anew every triple
+        (``processing.opaque_gate``); None: ``params`` as they are.
     """
 
     def __init__(self, cfg: Config, geometry: StereoGeometry | None,
                  image_size: tuple[int, int], params: ChainParameters, emission: Any,
                  handle: Callable[[WorkerResult], None],
-                 counters: Counters) -> None:
+                 counters: Counters, gate: GateTemperature | None = None) -> None:
         self.cfg = cfg
         self.geometry = geometry
         self.image_size = image_size
         self.params = params
         self.emission = emission
+        self.gate = gate
         self._handle = handle
         self.ring: Any = None
         #: The anemometer's sonic temperature (K), shared with the workers for the gas
-        #: temperature of the emission rate.
+        #: temperature of the emission rate and the opaque-edge gate.
         self.sonic_k: Any = None
         #: Set when the daemon wants the next result's full fields (``workers.worker_main``).
         self.fields_wanted: Any = None
@@ -160,7 +165,7 @@ class WorkerPool:
                                  args=(i, self.ring.handle(), (pipe, buffered), self._stop,
                                        self.geometry, self.params, n, self.emission,
                                        self.sonic_k, self._shift_table, self.fields_wanted,
-                                       self._image_table),
+                                       self._image_table, self.gate),
                                  daemon=True)
             p.start()
         return p

@@ -32,6 +32,7 @@ import numpy as np
 
 from appliance.memory import PeriodicTrim, keep_freed_memory
 from appliance.runtime.emission_setup import NO_RADIOMETRY, EmissionSetup, emission_rate
+from appliance.runtime.gas_temperature import GateTemperature
 from appliance.runtime.imageshare import SharedImages
 from appliance.runtime.result_channel import ResultSender
 from appliance.runtime.ring import PairRing
@@ -78,6 +79,7 @@ def worker_main(
     shift_table: Any = None,
     fields_wanted: Any = None,
     image_table: Any = None,
+    gate: GateTemperature | None = None,
 ) -> None:
     """Body of one worker process; returns when ``stop`` (an Event) is set.
 
@@ -111,6 +113,9 @@ def worker_main(
     image_table : ImageTable or None
         Differential images shared by the workers
         (:mod:`appliance.runtime.imageshare`); None: each worker computes its own.
+    gate : GateTemperature or None
+        Run the opaque-edge gate of every stereo triple at the site's gas temperature of
+        that moment (``sonic_k``); None: ``params`` as they are.
     """
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     set_os_thread_name(f"ogiflow-worker{worker_id}")  # what top and ps show for the process
@@ -119,7 +124,7 @@ def worker_main(
     # Started by multiprocessing from the daemon: it shares the daemon's resource tracker.
     ring = PairRing.attach(ring_handle, shared_tracker=True)
     worker = _Worker(worker_id, ring, n_workers, geometry, params, emission, sonic_k,
-                     shift_table, fields_wanted, image_table)
+                     shift_table, fields_wanted, image_table, gate)
     trim = PeriodicTrim()
     sender = ResultSender(*results)
     try:
@@ -142,9 +147,10 @@ class _Worker:
     def __init__(self, worker_id: int, ring: PairRing, n_workers: int,
                  geometry: StereoGeometry | None, params: ChainParameters,
                  emission: EmissionSetup | None, sonic_k: Any, shift_table: Any,
-                 fields_wanted: Any, image_table: Any = None) -> None:
+                 fields_wanted: Any, image_table: Any = None,
+                 gate: GateTemperature | None = None) -> None:
         self.worker_id, self.ring = worker_id, ring
-        self.geometry, self.params = geometry, params
+        self.geometry, self.params, self.gate = geometry, params, gate
         self.emission, self.sonic_k, self.fields_wanted = emission, sonic_k, fields_wanted
         self.stride, self.phase = share_of_stream(worker_id, n_workers)
         self.state = ChainState(
@@ -227,6 +233,8 @@ class _Worker:
                 rate_due: bool) -> None:
         if self.geometry is None:
             raise ValueError("a stereo pair at a site without stereo geometry")
+        if self.gate is not None:  # the gas temperature of this moment
+            self.params = self.gate.parameters(self.params, self.sonic_k)
         res = compute_scene_flow_on(left, right, base.t_mono_ns, self.geometry, self.params,
                                     self.state)
         pack_result(res, base, raw_left=left[0], fields=full, binning=self.params.binning)
