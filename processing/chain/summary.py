@@ -77,8 +77,8 @@ FLAGS: dict[str, str] = {
                          "e.g. from two frames of different moments paired): not a "
                          "measurement, and the next triple starts cold",
     "scene_change": "the whole picture changed at once (camera bumped, flat-field shutter, "
-                    "a jump in the scene): this triple started cold and its velocity is not "
-                    "gas motion",
+                    "a jump in the scene): this triple started cold, its velocity is not "
+                    "gas motion and it has no emission rate",
 }
 
 
