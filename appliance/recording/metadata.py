@@ -11,6 +11,7 @@ import dataclasses
 import json
 
 from appliance.config import Config, config_to_yaml
+from processing.calibration.calfile import curve_to_dict
 from processing.chain import ChainParameters, StereoGeometry
 
 
@@ -44,8 +45,6 @@ def processing_metadata(geometry: StereoGeometry, params: ChainParameters
     # then corrects counts as the run did.
     for side, curve in (("left", geometry.curve_left), ("right", geometry.curve_right)):
         if curve is not None:
-            geo[f"curve_{side}"] = {"offset": curve.offset, "gain": curve.gain,
-                                    "curvature": curve.curvature,
-                                    "band_m": list(curve.band_m)}
+            geo[f"curve_{side}"] = curve_to_dict(curve)
     return {"geometry": {"json": json.dumps(geo)},
             "processing": {"json": json.dumps(dataclasses.asdict(params), default=str)}}

@@ -314,9 +314,7 @@ def recorded_emission(meta: Any, config: dict[str, Any],
             print(f"warning: recorded gas file unusable ({exc}); methane", file=sys.stderr)
     t_gas = em.get("gas_temperature_k")
     if t_gas is None:
-        sonic = [m["sonic_temperature_c"] for m in wind
-                 if m.get("sonic_temperature_c") is not None]
-        t_gas = float(np.median(sonic)) + 273.15 if sonic else None
+        t_gas = median_sonic_k(wind)
     settings = EmissionSettings(gas=gas, pressure_pa=float(em.get("pressure_pa", 101325.0)),
                                 background_frames=int(em.get("background_frames", 60)))
     return EmissionSetup(settings, None if t_gas is None else float(t_gas))
@@ -328,8 +326,11 @@ def recorded_gas_temperature_k(emission: Any, config: dict[str, Any],
     its emission settings, else the median of its sonic temperatures; None: neither."""
     configured = (emission.gas_temperature_k if emission is not None
                   else (config.get("emission", {}) or {}).get("gas_temperature_k"))
-    if configured is not None:
-        return float(configured)
+    return float(configured) if configured is not None else median_sonic_k(wind)
+
+
+def median_sonic_k(wind: Sequence[dict[str, Any]]) -> float | None:
+    """Median sonic temperature of recorded wind samples, K; None: none reported one."""
     sonic = [m["sonic_temperature_c"] for m in wind if m.get("sonic_temperature_c") is not None]
     return float(np.median(sonic)) + 273.15 if sonic else None
 

@@ -32,7 +32,7 @@ from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import CameraWind, Mounting
 from drivers.camera.mcap_format import FrameLogReader
 from processing.calibration import load_calibration
-from processing.calibration.radiometric import CharacteristicCurve
+from processing.calibration.calfile import curve_from_dict
 from processing.chain import ChainParameters, StereoGeometry
 
 
@@ -60,11 +60,9 @@ def load_geometry(meta: Mapping[str, Mapping[str, str]],
     if geo is None:
         raise ValueError("the recording carries no calibration or geometry; give --calibration")
     g = json.loads(geo)
-    curves = [None if g.get(f"curve_{side}") is None else CharacteristicCurve(
-        offset=float(g[f"curve_{side}"]["offset"]), gain=float(g[f"curve_{side}"]["gain"]),
-        curvature=float(g[f"curve_{side}"]["curvature"]),
-        band_m=tuple(float(b) for b in g[f"curve_{side}"]["band_m"]))
-        for side in ("left", "right")]
+    curves = [None if g.get(f"curve_{side}") is None
+              else curve_from_dict(g[f"curve_{side}"], f"curve_{side}", "recorded geometry")
+              for side in ("left", "right")]
     return StereoGeometry(camera_constant=float(g["camera_constant"]),
                           principal_point=tuple(g["principal_point"]),
                           baseline=float(g["baseline"]), image_size=tuple(g["image_size"]),

@@ -35,6 +35,8 @@ from processing.calibration.radiometric import CharacteristicCurve
 
 __all__ = [
     "calibration_to_dict",
+    "curve_from_dict",
+    "curve_to_dict",
     "load_calibration",
     "load_radiometric",
     "save_calibration",
@@ -63,7 +65,8 @@ _CURVE_KEYS = {
 # ---------------------------------------------------------------------------------- writing
 
 
-def _curve_to_dict(curve: CharacteristicCurve) -> dict[str, Any]:
+def curve_to_dict(curve: CharacteristicCurve) -> dict[str, Any]:
+    """The mapping of one characteristic curve, as a calibration file holds it."""
     d: dict[str, Any] = {
         "model": curve.model,
         "offset": float(curve.offset),
@@ -83,7 +86,7 @@ def _curve_to_dict(curve: CharacteristicCurve) -> dict[str, Any]:
 
 
 def _radiometric_to_dict(rad: RadiometricCalibration) -> dict[str, Any]:
-    return {side: _curve_to_dict(c) for side, c in (("left", rad.left), ("right", rad.right))
+    return {side: curve_to_dict(c) for side, c in (("left", rad.left), ("right", rad.right))
             if c is not None}
 
 
@@ -212,7 +215,9 @@ def _number(data: dict[str, Any], key: str, path: Path) -> float:
     return float(arr)
 
 
-def _parse_curve(d: Any, where: str, path: Path) -> CharacteristicCurve:
+def curve_from_dict(d: Any, where: str, path: Path | str) -> CharacteristicCurve:
+    """Inverse of :func:`curve_to_dict`; :class:`CalibrationFileError` naming ``path`` and
+    the entry ``where`` for a wrong mapping."""
     if not isinstance(d, dict):
         raise CalibrationFileError(f"{path}: '{where}' must be a mapping")
     unknown = sorted(set(map(str, d)) - _CURVE_KEYS)
@@ -255,9 +260,9 @@ def _parse_radiometric(data: dict[str, Any], path: Path) -> RadiometricCalibrati
         raise CalibrationFileError(f"{path}: unknown key(s) in 'radiometric': "
                                    f"{', '.join(unknown)}")
     return RadiometricCalibration(
-        left=_parse_curve(section["left"], "radiometric.left", path) if "left" in section
+        left=curve_from_dict(section["left"], "radiometric.left", path) if "left" in section
         else None,
-        right=_parse_curve(section["right"], "radiometric.right", path) if "right" in section
+        right=curve_from_dict(section["right"], "radiometric.right", path) if "right" in section
         else None,
     )
 
