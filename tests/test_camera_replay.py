@@ -66,6 +66,21 @@ def test_folder_replay_delivers_every_good_image_in_order(folder: Path) -> None:
     assert cam.stats.skipped == 2
 
 
+def test_folder_replay_takes_the_folders_frame_interval_unless_told(folder: Path) -> None:
+    """A folder's labels.json frame_interval_s (GasVid: 1 s) sets the frames' times; the
+    fps option wins over it; without either, 30 frames/s."""
+    assert np.all(np.diff([f.host_ns for f in _drain(create_camera(
+        "replay_folder", path=folder, pace=False))]) == round(1e9 / 30))
+    (folder / "labels.json").write_text('{"frame_interval_s": 1.0}')
+    own = _drain(create_camera("replay_folder", path=folder, pace=False))
+    assert len(own) == 8 and np.all(np.diff([f.host_ns for f in own]) == 10**9)
+    told = _drain(create_camera("replay_folder", path=folder, fps=5.0, pace=False))
+    assert np.all(np.diff([f.host_ns for f in told]) == 2 * 10**8)
+    (folder / "labels.json").write_text('{"frame_interval_s": "soon"}')  # unusable: 30/s
+    assert np.all(np.diff([f.host_ns for f in _drain(create_camera(
+        "replay_folder", path=folder, pace=False))]) == round(1e9 / 30))
+
+
 def test_folder_replay_paced_and_looping(folder: Path) -> None:
     cam = create_camera(
         "replay_folder", path=folder, fps=200.0, pattern="img_00?.png", pace=True, loop=True

@@ -266,13 +266,13 @@ def test_a_signal_inside_the_wait_for_the_stop_event_does_not_deadlock() -> None
 
     def signal_while_holding_the_lock() -> None:
         with app.stop_event._cond:  # where Event.wait() is when the signal comes
-            app._on_signal(signal.SIGTERM, None)
+            app.signals.on_signal(signal.SIGTERM, None)
         done.set()
 
     threading.Thread(target=signal_while_holding_the_lock, daemon=True).start()
     assert done.wait(5.0), "the signal handler waited for the lock its own thread holds"
-    assert not app.stop_event.is_set() and app.signalled == signal.SIGTERM
-    app._take_signal()
+    assert not app.stop_event.is_set() and app.signals.signalled == signal.SIGTERM
+    app.signals.take()
     assert app.stop_event.is_set()
 
 

@@ -11,12 +11,12 @@ from processing.preprocess.depth_gate import (
     MIN_VOTES,
     DepthGate,
     _local_majority,
-    _sgbm_around,
     apply_gate,
     out_of_band_motion,
     too_few_votes,
 )
 from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.gate_sgbm import sgbm_around
 
 H, W = 120, 320
 BAND = (40.0, 72.0)  # the gas's disparity band, px
@@ -77,8 +77,8 @@ def test_sgbm_matches_only_around_the_voting_pixels() -> None:
     wall, _ = _blob((160.0, 60.0), 1000.0, seed=4)
     left, right = _views([(obj, 20.0), (wall / 3, 4.0)])
     box = (40, 81, 100, 141)
-    d, valid = _sgbm_around(left, right, 48, box, 1)
-    whole_d, whole_valid = _sgbm_around(left, right, 48, (0, H, 0, W), 1)
+    d, valid = sgbm_around(left, right, 48, box, 1)
+    whole_d, whole_valid = sgbm_around(left, right, 48, (0, H, 0, W), 1)
     assert not valid[:, :84].any() and not valid[:, 157:].any() and not valid[:24].any()
     assert whole_valid[:, 160:].mean() > 0.5  # the wall: matched on the whole image
     both = valid & whole_valid & disk
@@ -90,7 +90,7 @@ def test_sgbm_matches_only_around_the_voting_pixels() -> None:
 def test_a_still_view_pair_skips_semi_global_matching(monkeypatch: pytest.MonkeyPatch) -> None:
     # Without active pixels (or with fewer than an object needs) nothing can vote out of
     # band: the gate is empty without matching at all.
-    import processing.preprocess.depth_gate as gate_module
+    import processing.preprocess.gate_sgbm as gate_module
 
     def no_sgbm(*args: object, **kwargs: object) -> None:
         raise AssertionError("SGBM ran on a still pair")

@@ -130,14 +130,16 @@ def test_operator_view_renders_in_chromium(tmp_path: Path, scene_cache: Path) ->
             # What the operator sees is this old: capture -> processing -> status push (1 Hz)
             # -> viewer -> pixels. Read from the panel's "Newest frame" line a few times.
             ages: list[float] = []
-            for _ in range(8 if drawn else 0):
+            # Two readings show whether the age grows (each takes seconds: the viewer
+            # draws under a frame per second in a browser without GPU).
+            for _ in range(6 if drawn else 0):
                 time.sleep(1.0)
                 t_shot = time.time()
                 screenshot(page, tmp_path / "age.png")
                 age = shown_frame_age_s(ocr_status(tmp_path / "age.png").lower(), t_shot)
                 if age is not None:
                     ages.append(age)
-                if len(ages) >= 4:
+                if len(ages) >= 2:
                     break
             # The web viewer ingests about 10 ms of data per rendered frame (rerun issue
             # 7678): its frame rate bounds how fast the shown time can advance.

@@ -130,7 +130,7 @@ def test_the_daemon_refuses_the_gate_without_radiometric_curves() -> None:
     """A configuration error (exit 2 before any device opens), not a failure per triple."""
     from appliance.config import ConfigError
     from appliance.evaluation.bench_input import geometry as bench_geometry
-    from appliance.runtime.daemon import check_radiometry
+    from appliance.runtime.site_geometry import check_radiometry
     from processing.calibration.radiometric import CharacteristicCurve
 
     gate = ChainParameters(opaque_gate_gas_k=288.0)

@@ -18,7 +18,8 @@ queue that drops when full; so has the operator's page, and each of its browsers
 
 Where each box lives: camera and pairing threads and the raw wind recording in
 ``runtime.acquisition``; the worker pool (ring, worker processes, results thread) in
-``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; result
+``runtime.pool``, each worker in ``runtime.workers``; ring in ``runtime.ring``; the stereo
+geometry in ``runtime.site_geometry``; signals in ``runtime.signals``; result
 publishing in ``runtime.publishing``; recorder in ``recording.recorder`` (started by
 ``runtime.recorder_start``); live view in ``live.view``; the operator's page in ``page``;
 health in ``runtime.health``; the simulated site in ``runtime.simsite``.
@@ -28,14 +29,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import signal
 import threading
 import time
 from typing import Any
 
 import numpy as np
 
-from appliance.config import Config, ConfigError
+from appliance.config import Config
 from appliance.exitcodes import EXIT_FAILURE, EXIT_OK
 from appliance.live.fanout import views_of
 from appliance.live.view import LiveView
@@ -61,14 +61,15 @@ from appliance.runtime.pool import WorkerPool
 from appliance.runtime.publishing import ResultPublisher
 from appliance.runtime.recorder_start import start_recorder
 from appliance.runtime.sdnotify import SdNotifier, Watchdog, watchdog_period_s
+from appliance.runtime.signals import SignalLatch
 from appliance.runtime.simsite import SimulatedSite
 from appliance.runtime.single_camera import probe_image_size
+from appliance.runtime.site_geometry import check_radiometry, site_geometry
 from appliance.runtime.worker_result import WorkerResult
 from appliance.threads import NamedThread
 from drivers.anemometer.history import WindHistory
 from drivers.anemometer.mounting import Mounting
-from processing.calibration import load_calibration
-from processing.chain import ChainParameters, StereoGeometry
+from processing.chain import StereoGeometry
 
 log = logging.getLogger("ogiflow")
 
@@ -94,8 +95,8 @@ class Appliance:
         self.duration_s = duration_s
         self.announce = announce
         self.stop_event = threading.Event()
-        #: The signal (SIGTERM, SIGINT) that asked the run to stop, see :meth:`_on_signal`.
-        self.signalled: int | None = None
+        #: SIGTERM/SIGINT, taken by the main thread's wait loop.
+        self.signals = SignalLatch(self.stop_event)
         self.counters = Counters()
         self._threads: list[threading.Thread] = []
         self._t_wall0 = time.time_ns() - time.monotonic_ns()
@@ -131,23 +132,6 @@ class Appliance:
         return int(mono_ns + self._t_wall0)
 
     # ------------------------------------------------------------------ set-up
-
-    def _geometry(self) -> StereoGeometry | None:
-        """The stereo geometry (calibration, else the simulated scene's cameras); None at a
-        single-camera site without either (the single-camera chain needs none)."""
-        if self.cfg.calibration is not None:
-            return StereoGeometry.from_calibration(load_calibration(self.cfg.calibration))
-        if self.site is not None and self.site.truth is not None:
-            # The simulated cameras' counts models as their radiometric curves, as a
-            # calibrated site has them (the opaque-edge gate needs radiance).
-            return StereoGeometry.from_synthetic_camera(
-                self.site.truth.camera, self.site.truth.meta["counts_model"])
-        if self.cfg.cameras.right is None:
-            return None
-        raise ValueError(
-            "calibration: a stereo calibration file is required for real cameras "
-            "(run `ogiflow calibrate stereo`, then set calibration: in the config)"
-        )
 
     def _handle_result(self, res: WorkerResult) -> None:
         self.counters.skipped_pairs += res.skipped
@@ -216,7 +200,7 @@ class Appliance:
     def _run(self) -> None:
         self.prepare()
         with contextlib.ExitStack() as stack:
-            stack.callback(self._restore_signals)
+            stack.callback(self.signals.restore)
             if self.site is not None:
                 stack.callback(self.site.close)  # a background scene render
             self._start_recording(stack)
@@ -234,7 +218,7 @@ class Appliance:
             self._start_health(stack)
             self._start_acquisition(stack)
             stack.callback(self._begin_shutdown)
-            self._install_signals()
+            self.signals.install()
             self.notifier.ready(f"acquiring; live view: {self.live_url or 'off'}")
             if self.announce:
                 announce_start(self)
@@ -256,7 +240,7 @@ class Appliance:
         self.history = WindHistory(capacity=6000)
         self.site = SimulatedSite(cfg, self._mounting.rotation)
         self.site.prepare(full=full_scene)
-        self.geometry = self._geometry()
+        self.geometry = site_geometry(cfg, self.site)
         self.image_size = (self.geometry.image_size if self.geometry is not None
                            else probe_image_size(cfg, self.site))  # a single-camera site
         defaults = ({} if self.geometry is None else
@@ -271,7 +255,6 @@ class Appliance:
         self._keep_up.advice = keep_up_advice(self.image_size, self.params.binning,
                                               rendering=self.site.background is not None)
         self.emission = emission_setup(cfg, self.site.truth)
-        self._previous_handlers: dict[int, Any] = {}
 
     def _start_recording(self, stack: contextlib.ExitStack) -> None:
         if not self.cfg.recording.enabled:
@@ -381,14 +364,6 @@ class Appliance:
         if not self.recorder.close(timeout=5.0):
             self.failures.append("the recorder did not finish its files within 5 s")
 
-    def _install_signals(self) -> None:
-        self._previous_handlers = {sig: signal.signal(sig, self._on_signal)
-                                   for sig in (signal.SIGTERM, signal.SIGINT)}
-
-    def _restore_signals(self) -> None:
-        for sig, handler in self._previous_handlers.items():
-            signal.signal(sig, handler)
-
     # ------------------------------------------------------------------ waiting
 
     def _wait(self) -> None:
@@ -397,7 +372,7 @@ class Appliance:
         while not self.stop_event.is_set():
             timeout = 0.2 if t_end is None else max(0.0, min(0.2, t_end - time.monotonic()))
             self.stop_event.wait(timeout)
-            self._take_signal()
+            self.signals.take()
             self.pool.supervise(self.stop_event.is_set())
             trim.tick()
             if t_end is not None and time.monotonic() >= t_end:
@@ -420,30 +395,6 @@ class Appliance:
             self.failures.append(f"thread {name} died: {type(exc).__name__}: {exc}")
             self.stop_event.set()
 
-    def _on_signal(self, signum: int, frame: Any) -> None:
-        # Only an assignment here. Python runs the handler in the main thread between two
-        # bytecodes, which may be inside ``stop_event.wait()`` while it holds the event's
-        # lock: ``stop_event.set()`` (or a log call, whose handler has a lock too) then
-        # waited for itself, and a SIGTERM from systemd left the daemon hanging with every
-        # file open (seen once in the test suite). ``_wait`` takes the signal within 0.2 s.
-        self.signalled = signum
-
-    def _take_signal(self) -> None:
-        """Stop the run if a signal asked for it (called by the main thread's wait loop)."""
-        if self.signalled is not None and not self.stop_event.is_set():
-            log.info("signal %d: shutting down", self.signalled)
-            self.stop_event.set()
-
     def _health_counters(self) -> dict[str, int]:
         return health_counters(self)
 
-
-def check_radiometry(params: ChainParameters, geometry: StereoGeometry | None) -> None:
-    """ConfigError (exit 2, before any device opens) when a chain setting needs the
-    cameras' radiometric curves and the site has none: the opaque-edge gate
-    (``processing.opaque_gate`` sets ``opaque_gate_gas_k`` before this check)."""
-    if params.opaque_gate_gas_k is not None and (
-            geometry is None or geometry.curve_left is None or geometry.curve_right is None):
-        raise ConfigError(["processing.opaque_gate / processing.parameters.opaque_gate_gas_k: "
-                           "the opaque-edge gate needs both cameras' radiometric curves (a "
-                           "stereo calibration with characteristic curves)"])

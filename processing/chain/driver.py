@@ -32,15 +32,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.binning import (
-    bin_image,
     binned_geometry,
     binned_parameters,
     upsampled_result,
 )
 from processing.chain.flags import UNTRUSTED_FOR_CONSTANT_MODE, preprocess_flags
 from processing.chain.parameters import ChainParameters
+from processing.chain.preprocessing import Pair, check_frames, preprocess_triple
 from processing.chain.region import (
     Box,
     choose_region,
@@ -50,16 +49,13 @@ from processing.chain.region import (
     paste_fields,
 )
 from processing.chain.result import SceneFlowResult, frame_interval
-from processing.chain.scale import gas_radiance, initial_scale
+from processing.chain.scale import initial_scale
 from processing.chain.state import ChainState, Times, WarmStart, solver_options
 from processing.chain.summary import GasSummary, summarize_frame
 from processing.flow.brox import brox_optical_flow
 from processing.preprocess.depth_gate import apply_gate, out_of_band_motion
 from processing.preprocess.differential import (
     PreprocessedTriple,
-    apply_rectification,
-    preprocess_stereo,
-    radiometric_correction,
     rescale_differences,
     scale_samples,
 )
@@ -69,11 +65,9 @@ from processing.solvers.variational import PyramidCache
 from processing.stereo.coherence import smooth_disparity_change
 from processing.stereo.joint import joint_disparity
 from processing.stereo.sgm import sgbm_initial_disparity
-from processing.stereo_geometry import Maps, StereoGeometry
+from processing.stereo_geometry import StereoGeometry
 from processing.velocity.pixelwise import velocity_and_quality
 from processing.velocity.quality import c_usf
-
-Pair = tuple[PreprocessedTriple, PreprocessedTriple]
 
 
 def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
@@ -113,7 +107,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
         Wrong number or size of frames, non-increasing times, bad parameters.
     """
     params = params or ChainParameters()
-    _check_frames(left, right, geometry)
+    check_frames(left, right, geometry)
     k = params.binning
     # From here on the chain works on k x k blocks: its settings and Eq. 4's geometry in
     # blocks; the raw frames keep theirs for the correction (processing.chain.binning).
@@ -127,7 +121,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
 
     fixed = stream.scale_to_use(params.diff_scale)
     scale = fixed if fixed is not None else initial_scale(left, right, frames_geometry, params)
-    pl, pr = _preprocess(left, right, times, frames_geometry, params, stream, scale, k)
+    pl, pr = preprocess_triple(left, right, times, frames_geometry, params, stream, scale, k)
     clock.lap("preprocess")
     flags: list[str] = []
     blanked = None
@@ -215,65 +209,6 @@ class _Laps:
     def total(self) -> dict[str, float]:
         self.timings["total"] = (time.perf_counter() - self.start) * 1e3
         return self.timings
-
-
-def _check_frames(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
-                  geometry: StereoGeometry) -> None:
-    if len(left) != 3 or len(right) != 3:
-        raise ValueError(f"need 3 left and 3 right frames, got {len(left)} and {len(right)}")
-    w, h = geometry.image_size
-    for side, frames in (("left", left), ("right", right)):
-        for i, f in enumerate(frames):
-            shape = getattr(f, "shape", None)
-            if shape != (h, w):
-                raise ValueError(
-                    f"{side} frame t{i} has shape {shape}, the calibration expects {(h, w)}"
-                )
-
-
-def _correct(frame: np.ndarray, curve: CharacteristicCurve | None, maps: Maps | None,
-             binning: int = 1) -> np.ndarray:
-    """Radiometric correction and rectification of one raw frame, then its k x k blocks'
-    means (``binning`` k)."""
-    img = radiometric_correction(frame, curve)
-    img = img if maps is None else apply_rectification(img, maps[0], maps[1])
-    return bin_image(img, binning)
-
-
-def _preprocess(left: Sequence[np.ndarray], right: Sequence[np.ndarray], times: Times,
-                geometry: StereoGeometry, params: ChainParameters, stream: ChainState,
-                scale: float, binning: int = 1) -> Pair:
-    """Stage 1 (Sec. 4.1) for both cameras, each raw frame corrected (and binned) only once
-    per stream."""
-    known = stream.known_shifts(times, params.registration_pause_after if params.register
-                                else 0)
-    lg, contrast_floor = gas_radiance(params, geometry)
-    # The corrected frames then go through pre-processing as they are (no curve, no maps).
-    corrected = [
-        stream.corrected_frames(cam, frames, times,
-                                lambda f, curve=curve, maps=maps: _correct(f, curve, maps,
-                                                                           binning))
-        for cam, (frames, curve, maps) in enumerate((
-            (left, geometry.curve_left, geometry.maps_left),
-            (right, geometry.curve_right, geometry.maps_right)))
-    ]
-    shift01 = tuple(k[0][0] if k[0] else None for k in known)
-    # D(t0) of the previous triple's D(t1) (:meth:`ChainState.known_differences`); the
-    # differences depend on these settings too, and without registration no frame moves.
-    settings = (lg, contrast_floor, params.denoise_lambda)
-    diff0 = stream.known_differences(times, shift01 if params.register else ((0.0, 0.0),) * 2,
-                                     settings)
-    pl, pr = preprocess_stereo(
-        corrected[0], corrected[1], scale=scale, register=params.register,
-        denoise_lambda=params.denoise_lambda,
-        shift01=shift01,  # type: ignore[arg-type]
-        shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
-        max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
-        diff0=diff0,  # type: ignore[arg-type]
-    )
-    stream.remember_differences(times, (pl, pr), settings)
-    pl, pr = stream.remember_shifts(times, known, (pl, pr))
-    return pl, pr
 
 
 def _depth_gate(pl: PreprocessedTriple, pr: PreprocessedTriple, params: ChainParameters,

@@ -39,8 +39,8 @@ import cv2
 import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.gate_sgbm import coarse_sgbm
 from processing.preprocess.order_statistics import mad_spread
-from processing.stereo.sgm import sgbm_disparity
 from processing.validation import as_float_image, check_same_shape
 
 #: Multiple of the robust noise spread above which a differential pixel counts as active.
@@ -53,12 +53,6 @@ ACTIVITY_FLOOR = 0.05
 #: px, and the out-of-band votes a region needs to be an object (fewer are SGBM outliers).
 VOTE_RADIUS = 7
 MIN_VOTES = 12
-#: Narrower images keep SGBM at full resolution: halved, SGBM's matching blocks cover too
-#: much of a small picture (a 64 x 48 test recording lost its gas to the gate).
-MIN_WIDTH_HALF_SGBM = 160
-#: SGBM matches the voting pixels' bounding box grown by this margin, px (full resolution):
-#: its costs carry information along paths of a few blocks (:func:`_sgbm_around`).
-SGBM_MARGIN_PX = 16
 #: An object's region needs this many times more out-of-band than in-band votes.
 MAJORITY = 3.0
 #: Largest standard deviation of the out-of-band disparities of one local vote, px.
@@ -117,7 +111,7 @@ def out_of_band_motion(
         Radius by which the masks grow: the largest image motion within a triple, px.
     sgbm_downsample : int
         1 or 2: semi-global matching on images reduced by this factor (Gaussian pyramid;
-        images narrower than ``MIN_WIDTH_HALF_SGBM`` px stay at full resolution),
+        images narrower than ``gate_sgbm.MIN_WIDTH_HALF_SGBM`` px stay at full resolution),
         its disparities scaled back up. SGBM's cost is pixels x disparities, so 2 makes it
         8x cheaper (it was 10 of the gate's 12 ms); the band's tolerance (3 px) is larger
         than the 2 px steps of the coarser disparity, and the votes, regions and masks stay
@@ -159,7 +153,7 @@ def out_of_band_motion(
     # need only match around them.
     if too_few_votes(voting):
         return _empty_gate(h, w)
-    d, valid = _coarse_sgbm(il, ir, n_disp, sgbm_downsample, _bounds(voting))
+    d, valid = coarse_sgbm(il, ir, n_disp, sgbm_downsample, _bounds(voting))
     measured = valid & voting
     outside = measured & ((d < d_min - tolerance_px) | (d > d_max + tolerance_px))
     # The regions, votes and masks below would only confirm that nothing is removed (the
@@ -299,28 +293,6 @@ def _verdict(outside: np.ndarray, inside: np.ndarray, d: np.ndarray, labels: np.
     return out, reject
 
 
-def _padded_sgbm(left: np.ndarray, right: np.ndarray, n_disp: int,
-                 box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """SGBM over [0, n_disp) of the ``box`` (y0, y1, x0, x1; half-open) of a view pair,
-    each row matched with the ``n_disp`` columns left of the box (or, where the image
-    ends, columns of "no change", 0.5); the result is the box's, (y1 - y0, x1 - x0).
-
-    OpenCV's SGBM returns nothing for the leftmost ``n_disp`` columns of what it is given
-    (their candidates would reach left of the right image): on the whole image with the
-    gate's 128 px range at half resolution that was the left 40 % of a 320 px image, and
-    a warm object crossing there was never gated (measured: 0 of 2141 active pixels
-    matched; its edges then set d' of the whole image to 0). A point at x - d >= 0 is
-    inside the right image and matches as usual; only the padding itself stays unmatched
-    (it has no texture)."""
-    y0, y1, x0, x1 = box
-    start = max(0, x0 - n_disp)
-    pad = ((0, 0), (n_disp - (x0 - start), 0))
-    d, valid = sgbm_disparity(np.pad(left[y0:y1, start:x1], pad, constant_values=0.5),
-                              np.pad(right[y0:y1, start:x1], pad, constant_values=0.5),
-                              min_disparity=0, num_disparities=n_disp)
-    return d[:, n_disp:], valid[:, n_disp:]
-
-
 def _bounds(mask: np.ndarray) -> tuple[int, int, int, int]:
     """The bounding box (y0, y1, x0, x1; half-open) of a non-empty (H, W) bool mask."""
     rows = np.flatnonzero(mask.any(axis=1))
@@ -356,48 +328,6 @@ def _window_votes(votes: np.ndarray) -> np.ndarray:
     (OpenCV's box sum: near the border the window also counts mirrored votes)."""
     win = (2 * LOCAL_RADIUS + 1, 2 * LOCAL_RADIUS + 1)
     return cv2.boxFilter(votes.astype(np.float32), -1, win, normalize=False)
-
-
-def _coarse_sgbm(left: np.ndarray, right: np.ndarray, n_disp: int, factor: int,
-                 box: tuple[int, int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """SGBM disparity (px at full resolution) and validity over [0, n_disp) around the
-    ``box`` (y0, y1, x0, x1; half-open, full resolution) of the voting pixels, computed on
-    images reduced by ``factor`` (1 or 2) and brought back to (H, W); 0 and invalid
-    farther than ``SGBM_MARGIN_PX`` from the box."""
-    if factor not in (1, 2):
-        raise ValueError(f"sgbm_downsample must be 1 or 2, got {factor!r}")
-    h, w = left.shape
-    if factor == 1 or w < MIN_WIDTH_HALF_SGBM:
-        return _sgbm_around(left, right, n_disp, box, 1)
-    n_half = max(16, 16 * int(np.ceil(n_disp / 2 / 16.0)))
-    n_half = min(n_half, 16 * max(1, ((w // 2) - 8) // 16))
-    d, valid = _sgbm_around(cv2.pyrDown(left), cv2.pyrDown(right), n_half, box, 2)
-    d = cv2.resize(d * np.float32(2.0), (w, h), interpolation=cv2.INTER_NEAREST)
-    valid = cv2.resize(valid.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST)
-    return d, valid.astype(bool)
-
-
-def _sgbm_around(left: np.ndarray, right: np.ndarray, n_disp: int,
-                 box: tuple[int, int, int, int], factor: int
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_padded_sgbm` of a view pair (h, w) reduced by ``factor`` over the full-resolution
-    ``box`` grown by ``SGBM_MARGIN_PX``, placed in (h, w) arrays (0 and invalid elsewhere).
-
-    SGBM's costs at a pixel gather its row and the rows above it along its paths, so its
-    disparities near the box's edge differ a little from the whole image's (measured on
-    60 triples of the bench's plume with a 16 px margin: of the pixels that can vote, a
-    median of 98 % (at least 89 %) equally valid and on the same side of the band; the
-    same gate on every triple) at half of the cost."""
-    h, w = left.shape
-    y0, y1, x0, x1 = box
-    m = SGBM_MARGIN_PX
-    inner = (max(0, (y0 - m) // factor), min(h, -(-(y1 + m) // factor)),
-             max(0, (x0 - m) // factor), min(w, -(-(x1 + m) // factor)))
-    d = np.zeros((h, w), np.float32)
-    valid = np.zeros((h, w), bool)
-    ya, yb, xa, xb = inner
-    d[ya:yb, xa:xb], valid[ya:yb, xa:xb] = _padded_sgbm(left, right, n_disp, inner)
-    return d, valid
 
 
 def suppress(diff: np.ndarray, mask: np.ndarray) -> np.ndarray:
