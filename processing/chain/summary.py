@@ -69,8 +69,9 @@ FLAGS: dict[str, str] = {
     "registration_rejected": "the background has no static texture to measure jitter on "
                              "(sky, uniform wall): jitter, if any, is in the velocity (V_Z "
                              "most of all)",
-    "low_contrast": "the gas signal is within a few times the camera noise: velocities are "
-                    "weak",
+    "low_contrast": "the gas signal is within a few times the camera noise: the velocity is "
+                    "uncertain, its depth component V_Z most of all (the data no longer fix "
+                    "the disparity change's offset, which keeps its earlier value)",
     "object_motion_rejected": "moving image regions outside the gas depth band or without "
                               "stereo consistency (objects, not gas) were excluded",
     "implausible_speed": "the mean gas speed exceeded max_gas_speed_m_s (a wrong disparity, "
