@@ -462,3 +462,27 @@ def test_the_appliance_scales_the_estimator_to_the_cameras_width() -> None:
                              baseline=0.3, image_size=(width, width * 3 // 4))
         est = setup.estimator(geo)
         assert est is not None and est.settings.pixel_scale == scale
+
+
+def test_the_recorded_emission_setup_keeps_its_curve_whole() -> None:
+    """A recording's emission metadata holds the curve as a calibration file does (a
+    quadratic model and its band survive a replay); the two-key record of older recordings
+    still reads; a wrong one is a ValueError naming the metadata."""
+    import json
+
+    from appliance.runtime.emission_setup import EmissionSetup
+    from processing.calibration.radiometric import CharacteristicCurve
+    from processing.emission.estimator import EmissionSettings
+
+    curve = CharacteristicCurve(1000.0, 1e5, curvature=2e3, band_m=(3.25e-6, 3.45e-6))
+    setup = EmissionSetup(EmissionSettings(background_frames=7), 290.0, curve)
+    back = EmissionSetup.from_json(setup.to_json())
+    assert back.curve_left == curve and back.gas_temperature_k == 290.0
+    assert back.settings.background_frames == 7
+    old = json.loads(setup.to_json())
+    old["curve_left"] = {"offset": 1000.0, "gain": 1e5}
+    assert EmissionSetup.from_json(json.dumps(old)).curve_left == CharacteristicCurve(1000.0,
+                                                                                      1e5)
+    old["curve_left"] = {"offset": 1000.0}
+    with pytest.raises(ValueError, match="emission metadata"):
+        EmissionSetup.from_json(json.dumps(old))

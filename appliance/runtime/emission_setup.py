@@ -18,6 +18,7 @@ from appliance.runtime.gas_temperature import (
     configured_gas_temperature_k,
     site_gas_temperature_k,
 )
+from processing.calibration.calfile import curve_from_dict, curve_to_dict
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.chain.binning import binned_geometry
 from processing.chain.driver import SceneFlowResult, StereoGeometry
@@ -53,8 +54,7 @@ class EmissionSetup:
             "gas": dataclasses.asdict(st.gas), "pressure_pa": st.pressure_pa,
             "background_frames": st.background_frames,
             "gas_temperature_k": self.gas_temperature_k,
-            "curve_left": None if curve is None else {"offset": curve.offset,
-                                                      "gain": curve.gain}})
+            "curve_left": None if curve is None else curve_to_dict(curve)})
 
     @classmethod
     def from_json(cls, text: str) -> EmissionSetup:
@@ -67,9 +67,9 @@ class EmissionSetup:
                                         background_frames=int(d["background_frames"])),
                        None if d["gas_temperature_k"] is None
                        else float(d["gas_temperature_k"]),
-                       None if curve is None else CharacteristicCurve(
-                           offset=float(curve["offset"]), gain=float(curve["gain"])))
-        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+                       None if curve is None else curve_from_dict(
+                           curve, "curve_left", "the recording's emission metadata"))
+        except (KeyError, TypeError, ValueError) as exc:  # JSONDecodeError is a ValueError
             raise ValueError(f"bad emission metadata: {exc}") from None
 
     def estimator(self, geometry: StereoGeometry, binning: int = 1) -> EmissionEstimator | None:
