@@ -91,8 +91,7 @@ class StereoGeometry:
                 f"the synthetic cameras have lens distortion (k1={cam.get('k1')}, "
                 f"k2={cam.get('k2')}); use the matching calibration file instead")
         curves = (None, None) if counts is None else tuple(
-            CharacteristicCurve(offset=float(counts[side]["offset"]),
-                                gain=float(counts[side]["gain"])) for side in ("left", "right"))
+            CharacteristicCurve.from_counts_model(counts[side]) for side in ("left", "right"))
         return cls(camera_constant=float(cam["s_px"]),
                    principal_point=(float(cam["cx_px"]), float(cam["cy_px"])),
                    baseline=float(cam["b_m"]),

@@ -64,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
         Recording,
         load_geometry,
         parse_override,
+        read_wind,
     )
     from appliance.runtime.workers import single_threaded
 
@@ -76,7 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--fields-every must be >= 1, got {args.fields_every}")
     geometry = load_geometry(rec.meta, args.calibration)
     overrides = {k: yaml.safe_load(v) for k, v in map(parse_override, args.param)}
-    params = replay_parameters(rec, overrides)
+    wind = read_wind(rec.path)
+    params = replay_parameters(rec, overrides, wind)
     segments = [cut_segments([], None)[0]]
     if args.segment_s is not None:
         segments = cut_segments([p.time_ns for _i, p in PairStream(rec)], args.segment_s)
@@ -104,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         report, _ = process_into(sink, rec, geometry, params, _open_ended(segments),
                                  fields_every=args.fields_every, copy_wind=True,
-                                 live=live, pace=not args.fast, on_triple=progress)
+                                 live=live, pace=not args.fast, on_triple=progress,
+                                 wind=wind)
     except KeyboardInterrupt:
         pass
     finally:

@@ -222,6 +222,7 @@ def process_into(
     pace: bool = False,
     on_triple: Callable[[SegmentReport], None] | None = None,
     keep_summaries: bool = False,
+    wind: Sequence[dict[str, Any]] | None = None,
 ) -> tuple[SegmentReport, Any]:
     """Run ``segments`` of ``rec`` and publish into ``sink`` as the appliance would.
 
@@ -230,10 +231,11 @@ def process_into(
     same wind) and calls :func:`run_segments`. ``copy_wind`` also copies the raw wind
     samples into ``sink`` first (a whole-file replay; reprocess copies them once, when
     merging). Returns the report and the publisher (with ``keep_summaries`` its ``summaries``
-    hold every summary).
+    hold every summary). ``wind``: the recording's raw wind samples when the caller has
+    read them already (:func:`appliance.reprocess.source.read_wind`).
     """
 
-    wind = read_wind(rec.path)
+    wind = read_wind(rec.path) if wind is None else wind
     if copy_wind:
         sink.record_wind(wind, rec.wall_offset_ns)
     events = rec.config.get("events", {}) or {}
@@ -335,18 +337,20 @@ def median_sonic_k(wind: Sequence[dict[str, Any]]) -> float | None:
     return float(np.median(sonic)) + 273.15 if sonic else None
 
 
-def replay_parameters(rec: Recording, overrides: dict[str, Any]) -> ChainParameters:
+def replay_parameters(rec: Recording, overrides: dict[str, Any],
+                      wind: Sequence[dict[str, Any]] | None = None) -> ChainParameters:
     """The chain parameters to reprocess ``rec`` with: the recorded ones with ``overrides``
     (:func:`appliance.reprocess.source.load_parameters`); a recording that ran the
     opaque-edge gate at the site's gas temperature (``processing.opaque_gate``) gets the
     gate at the recording's (:func:`recorded_gas_temperature_k`; 15 degC without one) -
     one value for the whole file where the live run took each moment's - unless an
-    override sets ``opaque_gate_gas_k``."""
+    override sets ``opaque_gate_gas_k``. ``wind``: the recording's raw wind samples when
+    the caller has read them already."""
     params = load_parameters(rec.meta, overrides)
     if not (rec.config.get("processing", {}) or {}).get("opaque_gate") \
             or "opaque_gate_gas_k" in overrides:
         return params
-    wind = read_wind(rec.path)
+    wind = read_wind(rec.path) if wind is None else wind
     t_gas = recorded_gas_temperature_k(recorded_emission(rec.meta, rec.config, wind),
                                        rec.config, wind)
     return GateTemperature(t_gas).parameters(params)

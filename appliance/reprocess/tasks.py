@@ -66,12 +66,14 @@ def segment_task(job: Job, index: int, first: int, stop: int, n_pairs: int, seg_
     t0 = time.monotonic()
     rec = Recording.open(job.input)
     geometry = load_geometry(rec.meta, job.calibration)
-    params = replay_parameters(rec, dict(job.overrides))
+    wind = read_wind(job.input)
+    params = replay_parameters(rec, dict(job.overrides), wind)
     sink = McapSink(mcap_path, {})
     segment = Segment(index, first, stop)
     try:
         report, publisher = process_into(sink, rec, geometry, params, [segment],
-                                         fields_every=job.fields_every, keep_summaries=True)
+                                         fields_every=job.fields_every, keep_summaries=True,
+                                         wind=wind)
         rows = [summary_row(s) for s in publisher.summaries]
     except BaseException:
         sink.abort()
@@ -88,10 +90,11 @@ def merge_task(job: Job, n_segments: int, seg_dir: Path, output: Path) -> dict[s
     """Write the job's output: metadata, raw wind, then every segment's messages in order."""
 
     rec = Recording.open(job.input)
-    params = replay_parameters(rec, dict(job.overrides))
+    wind = read_wind(job.input)
+    params = replay_parameters(rec, dict(job.overrides), wind)
     sink = McapSink(output, rec.output_metadata(params, job.segment_s))
     try:
-        sink.record_wind(read_wind(job.input), rec.wall_offset_ns)
+        sink.record_wind(wind, rec.wall_offset_ns)
         for i in range(n_segments):
             sink.copy_from(segment_paths(seg_dir, i)[0])
     except BaseException:

@@ -139,8 +139,7 @@ def emission_setup(cfg: Any, truth: Any = None) -> EmissionSetup | None:
     gas = METHANE if em.gas_file is None else load_gas(em.gas_file)
     curve, t_gas = None, configured_gas_temperature_k(cfg, truth)
     if truth is not None:
-        counts = truth.meta["counts_model"]["left"]
-        curve = CharacteristicCurve(offset=float(counts["offset"]), gain=float(counts["gain"]))
+        curve = CharacteristicCurve.from_counts_model(truth.meta["counts_model"]["left"])
         rad = truth.meta["radiometry"]
         if em.gas_file is None:
             gas = dataclasses.replace(gas, alpha_per_ppm_m=float(rad["alpha_per_ppm_m"]),

@@ -18,8 +18,9 @@ body is taken as 1 unless given.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -161,6 +162,12 @@ class CharacteristicCurve:
         if self.gain <= 0:
             raise ValueError(f"characteristic curve gain must be > 0 counts per W m^-2 sr^-1, "
                              f"got {self.gain}")
+
+    @classmethod
+    def from_counts_model(cls, model: Mapping[str, Any]) -> CharacteristicCurve:
+        """The linear curve of a counts model ``{"offset": ..., "gain": ...}`` (counts =
+        offset + gain L), as a simulated camera's ``meta.json`` gives it."""
+        return cls(offset=float(model["offset"]), gain=float(model["gain"]))
 
     @property
     def model(self) -> str:
