@@ -137,3 +137,28 @@ def test_a_condition_places_the_moving_object(tmp_path: Path) -> None:
     base = rb.scene_config(m.scenes[0], m)
     far, near = (rb.condition_config(base, c).options.moving_object for c in m.conditions)
     assert far.z_m == 11.0 and near.z_m == rb.WARM_OBJECT.z_m == 8.0
+
+
+def test_combined_matrix_runs_the_wide_scenes_under_its_disturbances_together() -> None:
+    """wide-combined.yaml: the wide matrix's scenes, both parts, under two or three of its
+    realistic disturbances at once, each with the single condition's own parameter."""
+    here = Path(__file__).parent.parent / "benchmarks" / "matrices"
+    wide = {part: load_matrix(here / "wide.yaml", part) for part in ("dev", "holdout")}
+    combined = {part: load_matrix(here / "wide-combined.yaml", part)
+                for part in ("dev", "holdout")}
+    for part in ("dev", "holdout"):
+        assert combined[part].scenes == wide[part].scenes
+        assert (combined[part].n_frames, combined[part].voxel_m) == (
+            wide[part].n_frames, wide[part].voxel_m)
+    single = {c.name: c for c in wide["dev"].conditions}
+    noise, jitter = single["noise 0.03 K"].noise_netd_k, single["jitter 0.3 px"].jitter_px
+    assert noise > 0 and jitter > 0 and single["moving object"].moving_object
+    disturbances = []
+    for c in combined["dev"].conditions:
+        on = {"noise": c.noise_netd_k == noise, "jitter": c.jitter_px == jitter,
+              "object": c.moving_object}
+        assert c.noise_netd_k in (0, noise) and c.jitter_px in (0, jitter)
+        assert c.name == "+".join(k for k, v in on.items() if v) and sum(on.values()) >= 2
+        assert c.realistic
+        disturbances.append(frozenset(k for k, v in on.items() if v))
+    assert len(set(disturbances)) == 4  # the three pairs and all three
