@@ -62,7 +62,7 @@ from processing.preprocess.differential import (
 from processing.preprocess.opaque_gate import remove_opaque_edges
 from processing.segmentation.segment import segment_gas
 from processing.solvers.variational import PyramidCache
-from processing.stereo.coherence import smooth_disparity_change
+from processing.stereo.coherence import history_weight, smooth_disparity_change
 from processing.stereo.joint import joint_disparity
 from processing.stereo.sgm import sgbm_initial_disparity
 from processing.stereo_geometry import StereoGeometry
@@ -143,13 +143,14 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     box = _region(pl, params, warm, stream)
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
                                                  stream.change_history(follows))
+    history_triples = stream.change_triples(follows)
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
     flow = _flow(cl, params, cwarm, pyramids, flow_blanked(blanked, depth_blanked, params, box))
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
-    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history,
-                       pyramids)
+    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank,
+                       (history, history_triples), pyramids)
     (flow, d, dd), start = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
     area = measured_area(d.shape, box, max(pl.border_px, pr.border_px))
@@ -166,7 +167,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     stream.finish(times=times, scale=scale, fixed_scale=params.diff_scale,
                   forgetting=params.scale_forgetting, measured=measured, target=target,
                   scene_change=cut or implausible, flow=start[0], disparity=start[1],
-                  change=start[2], mask=mask)
+                  change=start[2], mask=mask, change_triples=history_triples + 1)
     blocks = SceneFlowResult(
         times_s=times, dt_s=dt, diff_left=(pl.diff0, pl.diff1), diff_right=(pr.diff0, pr.diff1),
         flow=flow, disparity=d, disparity_change=dd, velocity=velocity, position=position,
@@ -313,10 +314,11 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
                init: tuple[np.ndarray | None, np.ndarray | None], params: ChainParameters,
                warm: bool, flags: Sequence[str],
                blanked: tuple[np.ndarray, np.ndarray] | None,
-               history: tuple[np.ndarray | None, int], pyramids: PyramidCache
+               history: tuple[tuple[np.ndarray | None, int], int], pyramids: PyramidCache
                ) -> tuple[np.ndarray, np.ndarray]:
     """Stage 3 (Sec. 4.3, Eq. 6): d_L and d'_L given the flow, then d' made coherent with the
-    previous triple's along the gas's paths."""
+    previous triple's along the gas's paths (``history``: the previous d'_L and the frames
+    back, and how many triples that d'_L averages)."""
     options = solver_options(params.disparity_options, params.warm_disparity_options, warm)
     if UNTRUSTED_FOR_CONSTANT_MODE.intersection(flags):
         # Left-over jitter differs between the cameras and noise without gas contrast has
@@ -331,9 +333,10 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
     if params.temporal_weight > 0:
         # At stride 2 the previous triple is two frames back, so the paths are twice the
         # flow.
-        previous, steps = history
+        (previous, steps), n_history = history
         assert steps in (1, 2)
-        dd = smooth_disparity_change(dd, previous, flow * steps, params.temporal_weight)
+        dd = smooth_disparity_change(dd, previous, flow * steps,
+                                     history_weight(params.temporal_weight, n_history))
     return d, dd
 
 

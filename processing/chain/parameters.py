@@ -117,7 +117,8 @@ class ChainParameters:
         Share a in [0, 1) of the previous triple's d', carried along the flow, in this
         triple's d' (:mod:`processing.stereo.coherence`); 0 uses each triple alone (the paper).
         The default 0.7 (memory ~3 frames) halved the triple-to-triple scatter of V_Z on
-        the robustness matrix.
+        the robustness matrix. While the history holds n < 3 triples the share is at most
+        n / (n + 1) (a running mean until the memory is filled).
     diff_scale : float or None
         Normalisation scale of the differential images in radiance (or count) units. None
         tracks it online: the 0.999 quantile of |I_diff| over both cameras, with

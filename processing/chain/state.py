@@ -108,6 +108,9 @@ class ChainState:
         How many calls started warm and cold (for the benchmark and the tests).
     warm_run : int
         Warm starts since the last cold start (for ``ChainParameters.cold_every``).
+    change_run : int
+        Consecutive triples whose d' the kept ``previous_change`` averages
+        (:func:`processing.stereo.coherence.history_weight`); 0 after a reset.
     frames : dict
         Corrected and rectified frames of the last triple by (camera, capture time), camera
         0 = left, 1 = right (:meth:`corrected_frames`).
@@ -141,6 +144,7 @@ class ChainState:
     warm_starts: int = 0
     cold_starts: int = 0
     warm_run: int = 0
+    change_run: int = 0
     frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
     frames_reused: int = 0
     differences: dict[int, tuple[ImageKey, tuple[np.ndarray, np.ndarray]]] = field(
@@ -166,6 +170,7 @@ class ChainState:
         self.previous_flow = self.previous_disparity = self.previous_change = None
         self.previous_mask = None
         self.previous_times = None
+        self.change_run = 0
         self.frames.clear()
         self.differences.clear()
         self.rejected_run.clear()
@@ -234,6 +239,10 @@ class ChainState:
         """The previous triple's d'_L (None unless this triple ``follows`` it) and the frames
         between the two triples (the stride), for the temporal coherence of d'."""
         return (self.previous_change if follows else None), self.stride
+
+    def change_triples(self, follows: bool) -> int:
+        """How many triples the d' history of :meth:`change_history` averages (0: none)."""
+        return self.change_run if follows and self.previous_change is not None else 0
 
     # -- frames and shifts ---------------------------------------------------------------
 
@@ -356,10 +365,12 @@ class ChainState:
     def finish(self, *, times: Times, scale: float, fixed_scale: float | None,
                forgetting: float, measured: Sequence[np.ndarray], target: float | None,
                scene_change: bool, flow: np.ndarray, disparity: np.ndarray,
-               change: np.ndarray, mask: np.ndarray | None = None) -> None:
+               change: np.ndarray, mask: np.ndarray | None = None,
+               change_triples: int = 1) -> None:
         """Leave this triple for the next: the tracked scale moves towards ``target``; the
         fields are kept for a warm start unless the triple was a scene change (then the
-        next triple starts cold too: these fields are not gas)."""
+        next triple starts cold too: these fields are not gas). ``change_triples``: how
+        many triples ``change`` averages (this one and its history's)."""
         if fixed_scale is None:
             if self.scale is None:
                 self.scale = DiffScaleTracker(scale, forgetting=forgetting)
@@ -370,6 +381,7 @@ class ChainState:
         self.previous_flow = flow
         self.previous_disparity = disparity
         self.previous_change = change
+        self.change_run = change_triples
         self.previous_mask = mask
         self.previous_times = times
 

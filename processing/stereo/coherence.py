@@ -13,6 +13,12 @@ smoothed) d' is carried along the flow onto the current grid and blended in:
 a first-order (exponential) filter along the gas's paths, with memory 1 / (1 - a) frames
 (a = 0.7: about 3 frames, 0.1 s at 30 Hz). Where the previous value is unknown (new gas,
 outside the image) d' is kept as it is.
+
+The filter starts as a running mean: while the history holds n triples, a is at most
+n / (n + 1), so each of them and this triple weigh alike until the memory is filled
+(:func:`history_weight`). Started at a alone, the first triple's d' - the one with no
+history, and under noise often the farthest off - kept a share of 0.7, 0.49, 0.34 over the
+next three triples instead of 1/2, 1/3, 0.23.
 """
 
 from __future__ import annotations
@@ -49,6 +55,29 @@ def carry_along_flow(previous: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray
                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     inside = (mx >= 0) & (mx <= w - 1) & (my >= 0) & (my <= h - 1)
     return aligned, inside
+
+
+def history_weight(weight: float, n_triples: int) -> float:
+    """The share a of the history in d'_s when it holds ``n_triples`` (>= 0) consecutive
+    triples: ``weight``, but at most n / (n + 1) (module docstring).
+
+    Parameters
+    ----------
+    weight : float
+        The filter's a in [0, 1) (``ChainParameters.temporal_weight``).
+    n_triples : int
+        Triples whose d' the history averages; 0: none.
+
+    Returns
+    -------
+    float
+        min(weight, n / (n + 1)), in [0, 1).
+    """
+    if not 0.0 <= weight < 1.0:
+        raise ValueError(f"weight must be in [0, 1), got {weight!r}")
+    if n_triples < 0:
+        raise ValueError(f"n_triples must be >= 0, got {n_triples!r}")
+    return min(weight, n_triples / (n_triples + 1.0))
 
 
 def smooth_disparity_change(d_change: np.ndarray, previous: np.ndarray | None,
