@@ -281,14 +281,20 @@ def test_leak_state_follows_mqtt_and_agrees(page_run: dict) -> None:
     t_new = next(s["t_mqtt"] for s in samples if s["mqtt"] == "LEAK")
     print(f"the page said LEAK {lit[0] - t_new:+.3f} s after the MQTT 'new' arrived")
     assert abs(lit[0] - t_new) <= 1.0
-    # Every sample outside the second after an MQTT change: all three say the same.
+    # Every sample farther than a second from an MQTT change: all three say the same. The
+    # page may lead the broker's message as it may lag it (the alarm sink publishes on its
+    # own thread; above, within a second either way): a sample taken just before the
+    # message arrived read LEAK on the page and NO LEAK from MQTT.
+    changes = sorted({s["t_mqtt"] for s in samples if s["t_mqtt"] is not None})
     compared = 0
     for s in samples:
-        if not s["mqtt_stable"] or (s["t_mqtt"] is not None and s["t"] - s["t_mqtt"] < 1.0):
+        if not s["mqtt_stable"] or any(abs(s["t"] - c) < 1.0 for c in changes):
             continue
         assert s["js"]["state"] == s["status"] == s["mqtt"], s
         compared += 1
-    assert compared >= SAMPLES - 8
+    # two seconds around each change at 4 samples a second, and a sample or two taken while
+    # a message arrived
+    assert compared >= SAMPLES - 12
 
 
 def test_event_messages_are_few_and_share_one_id(page_run: dict) -> None:
