@@ -333,3 +333,21 @@ def test_a_textured_background_is_integrated_over_the_pixel_so_jitter_does_not_a
     area = residual(area_mean((0.0, 0.0)), area_mean(shift))
     single = residual(point((0.0, 0.0)), point(shift))
     assert area < 0.6 * single, (area, single)
+
+
+@pytest.mark.parametrize("kind", ["plant", "sky"])
+@pytest.mark.parametrize("k1", [0.0, -0.2])
+def test_a_background_evaluated_on_a_row_and_a_column_is_the_full_grids_to_the_bit(
+        kind: str, k1: float) -> None:
+    # Undistorted rays (k1 = 0) take the row-and-column shortcut, distorted ones the full
+    # grid; laid out as one long row the same rays never take it: the references.
+    from processing.synthetic.imaging import Background, background_radiance
+
+    cam = replace(CAM, k1=k1)
+    rad, background = Radiometry(), Background(kind=kind, seed=5)
+    dirs = ray_directions(cam, (0.37, -0.21))
+    shortcut = background_radiance(cam, rad, dirs, 0.2, 0.0, None, background)
+    flat = background_radiance(cam, rad, dirs.reshape(1, -1, 3), 0.2, 0.0, None, background)
+    assert shortcut.shape == (cam.height, cam.width)
+    assert np.array_equal(shortcut, flat.reshape(shortcut.shape))
+    assert float(shortcut.std()) > 0.0

@@ -173,17 +173,39 @@ def _soft_band(x: np.ndarray, lo: float, hi: float, edge: float) -> np.ndarray:
     return 0.25 * (1 + np.tanh((x - lo) / edge)) * (1 + np.tanh((hi - x) / edge))
 
 
+def _row_and_column(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``u`` as one row (1, W) and ``v`` as one column (H, 1) when (H, W) ``u`` is the same
+    in every row and ``v`` the same in every column, else both as given.
+
+    Through an undistorted lens (jittered or not) a pixel's ray lies on its column's and
+    its row's planes, so a background that is a sum of products of functions of x and of y
+    can be evaluated on W + H values instead of W * H and broadcast: every element is the
+    same product of the same numbers as over the full grid, bit for bit (a rendered frame
+    is unchanged; a distorted lens takes the full grid).
+    """
+    if u.ndim == 2 and v.ndim == 2 and u.shape == v.shape and u.shape[0] > 1:
+        row, column = u[:1], v[:, :1]
+        if (u == row).all() and (v == column).all():
+            return np.ascontiguousarray(row), np.ascontiguousarray(column)
+    return u, v
+
+
 def plant_wall_temperature(x_m: np.ndarray, y_m: np.ndarray, t_bg_k: float,
                            background: Background) -> np.ndarray:
-    """Temperature (K) of the plant wall at wall coordinates (X, Y) in m (module docstring).
+    """Temperature (K) of the plant wall at wall coordinates (X, Y) in m (module docstring),
+    (H, W) for (H, W) ``x_m`` and ``y_m``.
 
     The layout (pipes, tanks, flanges) is drawn from ``background.seed``; edges are ~3 cm
-    wide, about 2 px at the default 12 m.
+    wide, about 2 px at the default 12 m. Every term is a function of X, of Y or a product
+    of the two, evaluated on one row and one column where the grid allows
+    (:func:`_row_and_column`): the tanh edges over the whole frame were most of a plant
+    scene's rendering time.
     """
     rng = np.random.default_rng([background.seed, 77])
     c = background.contrast_k
     edge = 0.01 * background.depth_m / 6.0
-    temp = np.full(np.shape(x_m), float(t_bg_k))
+    temp = np.full(np.broadcast_shapes(np.shape(x_m), np.shape(y_m)), float(t_bg_k))
+    x_m, y_m = _row_and_column(np.asarray(x_m, float), np.asarray(y_m, float))
     # slow structure of the wall itself (sun, shade)
     for _ in range(3):
         kx, ky = rng.uniform(0.5, 2.0, 2)
@@ -214,9 +236,12 @@ def plant_wall_temperature(x_m: np.ndarray, y_m: np.ndarray, t_bg_k: float,
 
 def sky_temperature(dirs: np.ndarray, background: Background) -> np.ndarray:
     """Effective sky temperature (K) per ray direction (x_n, y_n, 1): at infinity."""
-    elevation = -np.arctan(dirs[..., 1])  # Y points down
-    azimuth = np.arctan(dirs[..., 0])
-    temp = background.sky_horizon_k - background.sky_gradient_k_per_rad * elevation
+    x_n, y_n = _row_and_column(dirs[..., 0], dirs[..., 1])
+    elevation = -np.arctan(y_n)  # Y points down
+    azimuth = np.arctan(x_n)
+    temp = np.broadcast_to(
+        background.sky_horizon_k - background.sky_gradient_k_per_rad * elevation,
+        dirs.shape[:-1]).copy()
     # faint cumulus-like structure, tens of pixels across: not enough to register on
     rng = np.random.default_rng([background.seed, 78])
     for _ in range(4):
