@@ -198,7 +198,7 @@ def plant_wall_temperature(x_m: np.ndarray, y_m: np.ndarray, t_bg_k: float,
     The layout (pipes, tanks, flanges) is drawn from ``background.seed``; edges are ~3 cm
     wide, about 2 px at the default 12 m. Every term is a function of X, of Y or a product
     of the two, evaluated on one row and one column where the grid allows
-    (:func:`_row_and_column`): the tanh edges over the whole frame were most of a plant
+    (:func:`_row_and_column`): over every pixel, the tanh edges would take most of a plant
     scene's rendering time.
     """
     rng = np.random.default_rng([background.seed, 77])
