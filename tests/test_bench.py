@@ -40,6 +40,9 @@ def test_bench_json_shape(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
     assert res["chain_ms"] >= 0.99 * sum(res["stages_ms"].values())
     assert set(res["pairs_per_s"]) == {"1", "2"}
     assert all(_positive_finite(v) for v in res["pairs_per_s"].values())
+    # per worker, the share of D(t0) found computed (the one worker: its previous triple's)
+    assert [len(res["d0_found"][n]) for n in ("1", "2")] == [1, 2]
+    assert all(0 <= f <= 1 for n in ("1", "2") for f in res["d0_found"][n])
     assert res["throughput_frames"] == bm.THROUGHPUT_MIN_FRAMES  # --frames 6 is too short
     assert _positive_finite(res["farneback_ms"]) and _positive_finite(res["chain_cpu_ms"])
     assert set(res["ratio_to_farneback"]) == {*bm.STAGES, "chain"}

@@ -176,7 +176,8 @@ def run(args: argparse.Namespace) -> int:
     for t in through:
         print(f"{t.workers} worker(s): {t.pairs_per_s:.2f} pairs/s "
               f"({t.triples} triples in {t.wall_s:.1f} s; {t.cpu_ms_per_pair:.1f} ms CPU each, "
-              f"{t.pairs_per_cpu_s:.2f} pairs per CPU-second)")
+              f"{t.pairs_per_cpu_s:.2f} pairs per CPU-second; D(t0) found computed: "
+              f"{', '.join(f'{100 * f:.0f} %' for f in t.d0_found)})")
     if load_start is not None and load_end is not None:
         print(f"load average (1/5/15 min): start {_fmt_load(load_start)}, "
               f"end {_fmt_load(load_end)} on {_cpu_count()} CPUs")
@@ -201,6 +202,7 @@ def run(args: argparse.Namespace) -> int:
                                  "ratio_to_farneback": full_ratios},
             "cpu_ms_per_pair": {str(t.workers): t.cpu_ms_per_pair for t in through},
             "pairs_per_cpu_s": {str(t.workers): t.pairs_per_cpu_s for t in through},
+            "d0_found": {str(t.workers): list(t.d0_found) for t in through},
             "farneback_ms": st.farneback_ms,
             "farneback_cpu_ms": st.farneback_cpu_ms,
             "ratio_to_farneback": ratios,

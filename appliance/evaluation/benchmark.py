@@ -239,6 +239,9 @@ class Throughput:
     triples: int
     wall_s: float
     cpu_s: float
+    #: Per worker, the share of its timed triples' D(t0) lookups (one per camera) that found
+    #: the image computed, by its own previous triple or another worker (0..1).
+    d0_found: tuple[float, ...] = ()
 
     @property
     def pairs_per_s(self) -> float:
@@ -286,6 +289,7 @@ def _worker(frames: BenchFrames, params: ChainParameters, seconds: float, warmup
         run_one()
     barrier.wait()
     t0, c0 = time.perf_counter(), time.process_time()
+    found0 = state.differences_reused
     deadline = t0 + seconds
     done = 0
     now = t0
@@ -293,7 +297,9 @@ def _worker(frames: BenchFrames, params: ChainParameters, seconds: float, warmup
         run_one()
         done += 1
         now = time.perf_counter()
-    results.put((done, now - t0, time.process_time() - c0))
+    # one D(t0) lookup per camera and triple
+    found = (state.differences_reused - found0) / (2 * done)
+    results.put((done, now - t0, time.process_time() - c0, offset, found))
 
 
 def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10.0,
@@ -340,7 +346,8 @@ def measure_throughput(frames: BenchFrames, workers: int, *, seconds: float = 10
                 p.terminate()
                 p.join()
     return Throughput(workers=workers, triples=sum(r[0] for r in out),
-                      wall_s=max(r[1] for r in out), cpu_s=sum(r[2] for r in out))
+                      wall_s=max(r[1] for r in out), cpu_s=sum(r[2] for r in out),
+                      d0_found=tuple(r[4] for r in sorted(out, key=lambda r: r[3])))
 
 
 def load_average() -> tuple[float, float, float] | None:
