@@ -144,13 +144,14 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     cl, cr, cwarm, cblank, history = crop_inputs(box, pl, pr, warm, blanked,
                                                  stream.change_history(follows))
     history_triples = stream.change_triples(follows)
+    history_share = history_weight(params.temporal_weight, history_triples)
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
     flow = _flow(cl, params, cwarm, pyramids, flow_blanked(blanked, depth_blanked, params, box))
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
-    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank,
-                       (history, history_triples), pyramids)
+    d, dd = _disparity(cl, cr, flow, init, params, warm is not None, flags, cblank, history,
+                       history_share, pyramids)
     (flow, d, dd), start = paste_fields(box, flow, d, dd, warm)
     clock.lap("disparity")
     area = measured_area(d.shape, box, max(pl.border_px, pr.border_px))
@@ -314,11 +315,12 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
                init: tuple[np.ndarray | None, np.ndarray | None], params: ChainParameters,
                warm: bool, flags: Sequence[str],
                blanked: tuple[np.ndarray, np.ndarray] | None,
-               history: tuple[tuple[np.ndarray | None, int], int], pyramids: PyramidCache
-               ) -> tuple[np.ndarray, np.ndarray]:
+               history: tuple[np.ndarray | None, int], history_share: float,
+               pyramids: PyramidCache) -> tuple[np.ndarray, np.ndarray]:
     """Stage 3 (Sec. 4.3, Eq. 6): d_L and d'_L given the flow, then d' made coherent with the
     previous triple's along the gas's paths (``history``: the previous d'_L and the frames
-    back, and how many triples that d'_L averages)."""
+    back; ``history_share``: its share in this d'_L,
+    :func:`processing.stereo.coherence.history_weight`)."""
     options = solver_options(params.disparity_options, params.warm_disparity_options, warm)
     if UNTRUSTED_FOR_CONSTANT_MODE.intersection(flags):
         # Left-over jitter differs between the cameras and noise without gas contrast has
@@ -333,10 +335,9 @@ def _disparity(pl: PreprocessedTriple, pr: PreprocessedTriple, flow: np.ndarray,
     if params.temporal_weight > 0:
         # At stride 2 the previous triple is two frames back, so the paths are twice the
         # flow.
-        (previous, steps), n_history = history
+        previous, steps = history
         assert steps in (1, 2)
-        dd = smooth_disparity_change(dd, previous, flow * steps,
-                                     history_weight(params.temporal_weight, n_history))
+        dd = smooth_disparity_change(dd, previous, flow * steps, history_share)
     return d, dd
 
 
