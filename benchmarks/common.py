@@ -71,7 +71,8 @@ def sequence_arguments(doc: str) -> argparse.Namespace:
 
 def scene_arguments(doc: str) -> argparse.ArgumentParser:
     """Command line of the analyses of one robustness-matrix scene: ``--matrix``,
-    ``--part``, ``--seed``, ``--condition`` and the gas ``--cache`` (add more, then parse)."""
+    ``--part``, ``--seed``, ``--condition``, the gas ``--cache`` and ``--config`` (add more,
+    then parse)."""
     ap = argparse.ArgumentParser(description=doc.splitlines()[0])
     ap.add_argument("--matrix", type=Path, required=True, help="matrix file (YAML/JSON)")
     ap.add_argument("--part", default="dev", choices=("dev", "holdout"))
@@ -79,6 +80,8 @@ def scene_arguments(doc: str) -> argparse.ArgumentParser:
     ap.add_argument("--condition", default="ideal")
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/ogiflow/robustness",
                     help="gas cache of `ogiflow eval robustness`")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="run the chain with this configuration file's processing.parameters")
     return ap
 
 
@@ -86,7 +89,9 @@ def matrix_scene(ap: argparse.ArgumentParser, args: argparse.Namespace
                  ) -> tuple[Any, Any, list[Any], Any, Any]:
     """(scene, condition, frames, geometry, chain parameters) the :func:`scene_arguments`
     name, as ``ogiflow eval robustness`` renders and runs them (``ap.error`` when the matrix
-    has no such scene or condition)."""
+    has no such scene or condition); with ``--config FILE`` the parameters are the file's
+    ``processing.parameters`` over the scene's gas depth band, as ``ogiflow eval robustness
+    --config FILE`` runs them."""
     from appliance.evaluation import robustness
     from appliance.evaluation.matrix_file import load_matrix
 
@@ -97,4 +102,9 @@ def matrix_scene(ap: argparse.ArgumentParser, args: argparse.Namespace
         ap.error(f"no scene with seed {args.seed} or no condition {args.condition!r} in "
                  f"{args.matrix} ({args.part})")
     frames, geometry, params = robustness.scene_frames(matrix, scene, cond, args.cache)
+    if args.config is not None:
+        from appliance.evaluation.sceneflow_setup import load_processing
+
+        params = load_processing(args.config).chain_parameters(
+            {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
     return scene, cond, frames, geometry, params

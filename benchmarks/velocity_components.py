@@ -19,12 +19,9 @@ scene's gas depth band), e.g. with ``disparity_options: {constant_mode: false}``
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from appliance.evaluation.sceneflow import common_mean_velocities, frame_metrics
-from appliance.evaluation.sceneflow_setup import load_processing
 from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
 from processing.synthetic.reference import triplet_reference
@@ -53,13 +50,8 @@ def _fmt(v: np.ndarray) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = scene_arguments(__doc__ or "")
-    ap.add_argument("--config", type=Path, default=None,
-                    help="run the chain with this configuration file's processing.parameters")
     args = ap.parse_args(argv)
     scene, cond, frames, geometry, params = matrix_scene(ap, args)
-    if args.config is not None:
-        params = load_processing(args.config).chain_parameters(
-            {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
     state = ChainState()
     print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
     print("triple  pixels  V measured (m/s)        V reference (m/s)       d (px)  d' (px)"

@@ -18,13 +18,10 @@ docs/evaluation-sceneflow.md), not the joint solver.
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 
 from appliance.evaluation.sceneflow import common_mean_velocities
-from appliance.evaluation.sceneflow_setup import load_processing
 from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
 from processing.flow.brox import brox_optical_flow
@@ -59,13 +56,8 @@ def implied_change(u_left: np.ndarray, u_right: np.ndarray, disparity: np.ndarra
 
 def main(argv: list[str] | None = None) -> int:
     ap = scene_arguments(__doc__ or "")
-    ap.add_argument("--config", type=Path, default=None,
-                    help="run the chain with this configuration file's processing.parameters")
     args = ap.parse_args(argv)
     scene, cond, frames, geometry, params = matrix_scene(ap, args)
-    if args.config is not None:
-        params = load_processing(args.config).chain_parameters(
-            {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
     flow_args = {"alpha": params.alpha, "beta": params.beta, **params.flow_options}
     state = ChainState()
     print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
