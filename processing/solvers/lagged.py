@@ -42,16 +42,16 @@ Workspace = tuple
 
 
 @numba.njit(cache=True, error_model="numpy")
-def border_masks(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
-    """Edge-existence masks (4, H+2, W2+2) for red and black: left, right, up, down.
+def write_border_masks(height: int, width: int, red: np.ndarray, black: np.ndarray) -> None:
+    """Edge-existence masks for red and black, (4, H+2, W2+2) each: left, right, up, down.
 
-    1 where the pixel has that neighbour inside the image, 0 at image borders, in the
-    halo and at padding entries (odd W), so that multiplying edge weights by the mask
-    imposes Neumann boundary conditions and keeps padding entries decoupled.
+    Every entry is written: 1 where the pixel has that neighbour inside the image, 0 at
+    image borders, in the halo and at padding entries (odd W), so that multiplying edge
+    weights by the mask imposes Neumann boundary conditions and keeps padding entries
+    decoupled.
     """
-    shape = (4, height + 2, (width + 1) // 2 + 2)
-    red = np.zeros(shape, np.float32)
-    black = np.zeros(shape, np.float32)
+    red[:] = 0.0
+    black[:] = 0.0
     for y in range(height):
         for x in range(width):
             m = red if (x + y) % 2 == 0 else black
@@ -61,7 +61,6 @@ def border_masks(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
             m[1, yc, xc] = 1.0 if x < width - 1 else 0.0
             m[2, yc, xc] = 1.0 if y > 0 else 0.0
             m[3, yc, xc] = 1.0 if y < height - 1 else 0.0
-    return red, black
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -219,6 +218,31 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int
             d2 = b22[x] + wl2[x] + wr2[x] + wu2[x] + wd2[x]
             i1[x] = np.float32(1.0) / d1 if d1 > 0 else np.float32(0.0)
             i2[x] = np.float32(1.0) / d2 if d2 > 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def prepare_workspace(ws: Workspace, width: int) -> None:
+    """Make a workspace carved from memory an earlier level used ready for the kernels.
+
+    Writes the masks and zeroes, in every compact array of a colour, the entries that hold
+    no pixel (:func:`processing.solvers.redblack.clear_outside`): every kernel writes a
+    pixel's entry before it reads it, so these are all that an earlier level's values
+    could reach the solution through (``tests/test_solver_workspace.py``).
+    """
+    write_border_masks(ws.shape[0], width, ws.masks[0], ws.masks[1])
+    for c in range(2):
+        for k in range(ws.inputs.shape[0]):
+            redblack.clear_outside(ws.inputs[k, c], c, width)
+        for k in range(ws.coefs[c].shape[0]):
+            redblack.clear_outside(ws.coefs[c][k], c, width)
+        redblack.clear_outside(ws.x1[c], c, width)
+        redblack.clear_outside(ws.x2[c], c, width)
+        redblack.clear_outside(ws.x1_0[c], c, width)
+        redblack.clear_outside(ws.x2_0[c], c, width)
+        redblack.clear_outside(ws.a11[c], c, width)
+        redblack.clear_outside(ws.a22[c], c, width)
+        redblack.clear_outside(ws.psi1[c], c, width)
+        redblack.clear_outside(ws.psi2[c], c, width)
 
 
 @numba.njit(cache=True, error_model="numpy")

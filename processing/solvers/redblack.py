@@ -54,6 +54,28 @@ def empty_system(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def clear_outside(a: np.ndarray, colour: int, width: int) -> None:
+    """Zero the entries of a compact array (H+2, W2+2) that hold no pixel: the halo and, for
+    odd W, the padding entry of the rows where ``colour`` has one pixel fewer.
+
+    The kernels write every pixel's entry before reading it and read the others only
+    through zero edge weights; zeros there keep them from carrying anything in.
+    """
+    hh, ww = a.shape
+    n = ww - 2
+    a[0, :] = 0.0
+    a[hh - 1, :] = 0.0
+    for yc in range(1, hh - 1):
+        a[yc, 0] = 0.0
+        a[yc, ww - 1] = 0.0
+        # Row y's pixels of this colour start at x0 = (colour - y) & 1 and fill compact
+        # columns 1..count.
+        count = (width - ((colour - (yc - 1)) & 1) + 1) // 2
+        for xc in range(count + 1, n + 1):
+            a[yc, xc] = 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
 def split_field(field: np.ndarray, red: np.ndarray, black: np.ndarray) -> None:
     """Scatter a full-grid field (H, W) into compact red/black arrays (H+2, W2+2), in place."""
     h, w = field.shape

@@ -12,14 +12,13 @@ warps, lagged fixed-point iterations and red-black SOR (:mod:`processing.solvers
   and calls a level solver (scikit-image's ``_optical_flow_utils.coarse_to_fine`` is the
   model);
 - :class:`Workspace` / :func:`workspace`: the compact red-black arrays of one level size,
-  allocated once per thread and reused by every call, so that a solver call allocates no
-  per-iteration memory (fresh pages were a third of the solver time before).
+  views of one buffer per thread that every level and call reuses, so that a solver call
+  allocates no per-iteration memory (fresh pages were a third of the solver time before).
 """
 
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -30,9 +29,6 @@ from processing.solvers import lagged, pyramid, redblack
 
 Fields = tuple[np.ndarray, ...]
 LevelSolver = Callable[[int, Fields], Fields]
-
-#: Workspaces kept per thread (a pyramid of one image size has about 11 levels).
-MAX_WORKSPACES = 48
 
 #: Per-pixel data-term inputs of the larger of the two solvers (the flow: 9).
 N_INPUTS = 9
@@ -55,7 +51,7 @@ class Workspace(NamedTuple):
     coefs : (ndarray, ndarray), shape (13, H+2, W2+2) each
         The linear system (planes of :mod:`processing.solvers.redblack`).
     masks : (ndarray, ndarray), shape (4, H+2, W2+2) each
-        Edge-existence masks (:func:`processing.solvers.lagged.border_masks`); constant.
+        Edge-existence masks (:func:`processing.solvers.lagged.write_border_masks`).
     a11, a22, psi1, psi2 : (ndarray, ndarray)
         Data diagonals and the lagged smoothness weights of the two penalisers.
     s2 : ndarray
@@ -76,54 +72,62 @@ class Workspace(NamedTuple):
     psi2: tuple[np.ndarray, np.ndarray]
     s2: np.ndarray
 
-    @classmethod
-    def allocate(cls, height: int, width: int) -> Workspace:
-        """Allocate (zeroed) the arrays for an (H, W) level."""
-        cshape = redblack.compact_shape(height, width)
 
-        def pair() -> tuple[np.ndarray, np.ndarray]:
-            return np.zeros(cshape, np.float32), np.zeros(cshape, np.float32)
-
-        return cls(
-            shape=(height, width),
-            inputs=np.zeros((N_INPUTS, 2, *cshape), np.float32),
-            x1=pair(), x2=pair(), x1_0=pair(), x2_0=pair(),
-            coefs=redblack.empty_system(height, width),
-            masks=lagged.border_masks(height, width),
-            a11=pair(), a22=pair(), psi1=pair(), psi2=pair(),
-            s2=np.zeros(cshape, np.float32),
-        )
-
-    @property
-    def nbytes(self) -> int:
-        """Memory held by this workspace in bytes."""
-        arrays = [self.inputs, self.s2]
-        for p in (self.x1, self.x2, self.x1_0, self.x2_0, self.coefs, self.masks, self.a11,
-                  self.a22, self.psi1, self.psi2):
-            arrays.extend(p)
-        return sum(a.nbytes for a in arrays)
-
+#: Compact planes of one level size in a workspace: the inputs, four pairs of unknowns,
+#: two systems, two sets of masks, four pairs of diagonals and weights, the scratch.
+N_PLANES = 2 * N_INPUTS + 8 + 2 * redblack.N_PLANES + 8 + 8 + 1
 
 _local = threading.local()
 
 
-def workspace(shape: tuple[int, int]) -> Workspace:
-    """The workspace of this thread for level size ``shape`` (H, W), allocated on first use.
+def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
+    """A workspace for an (H, W) level whose arrays are C-contiguous views of ``buffer``
+    (at least :data:`N_PLANES` compact planes), ready for the kernels: the masks written,
+    every entry that holds no pixel zeroed (:func:`processing.solvers.redblack.clear_outside`),
+    whatever an earlier level left there."""
+    cshape = redblack.compact_shape(height, width)
+    plane = cshape[0] * cshape[1]
+    planes = buffer[:N_PLANES * plane].reshape(N_PLANES, *cshape)
+    at = 0
 
-    Per thread, so that solvers called from several threads never share scratch memory;
-    the least recently used sizes are dropped beyond :data:`MAX_WORKSPACES`.
+    def take(n: int) -> np.ndarray:
+        nonlocal at
+        at += n
+        return planes[at - n:at]
+
+    def pair() -> tuple[np.ndarray, np.ndarray]:
+        return take(1)[0], take(1)[0]
+
+    inputs = take(2 * N_INPUTS).reshape(N_INPUTS, 2, *cshape)
+    x1, x2, x1_0, x2_0 = pair(), pair(), pair(), pair()
+    coefs = take(redblack.N_PLANES), take(redblack.N_PLANES)
+    masks = take(4), take(4)
+    ws = Workspace(shape=(height, width), inputs=inputs, x1=x1, x2=x2, x1_0=x1_0, x2_0=x2_0,
+                   coefs=coefs, masks=masks, a11=pair(), a22=pair(), psi1=pair(),
+                   psi2=pair(), s2=take(1)[0])
+    lagged.prepare_workspace(ws, width)
+    return ws
+
+
+def workspace(shape: tuple[int, int]) -> Workspace:
+    """The workspace of this thread for level size ``shape`` (H, W).
+
+    All level sizes of a thread share one buffer, grown to the largest size asked for:
+    the solvers work on one level at a time, and one buffer keeps a worker's working set
+    to its finest level's arrays, where one set per level and active-region size
+    (119 sizes in 120 bench triples) had reached 120 MB and allocated 2.3 sets a triple.
+    A workspace is valid until this thread asks for another size.
     """
-    cache: OrderedDict[tuple[int, int], Workspace] | None = getattr(_local, "cache", None)
-    if cache is None:
-        cache = _local.cache = OrderedDict()
     key = (int(shape[0]), int(shape[1]))
-    ws = cache.get(key)
-    if ws is None:
-        ws = cache[key] = Workspace.allocate(*key)
-        while len(cache) > MAX_WORKSPACES:
-            cache.popitem(last=False)
-    else:
-        cache.move_to_end(key)
+    ws: Workspace | None = getattr(_local, "ws", None)
+    if ws is not None and ws.shape == key:
+        return ws
+    cshape = redblack.compact_shape(*key)
+    need = N_PLANES * cshape[0] * cshape[1]
+    buffer: np.ndarray | None = getattr(_local, "buffer", None)
+    if buffer is None or buffer.size < need:
+        buffer = _local.buffer = np.zeros(need, np.float32)
+    ws = _local.ws = _carve(buffer, *key)
     return ws
 
 
