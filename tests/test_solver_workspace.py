@@ -100,3 +100,28 @@ def test_every_level_size_of_a_thread_shares_one_buffer() -> None:
         return np.shares_memory(big.inputs, small.inputs), again is small
 
     assert _in_thread(sizes) == (True, True)
+
+
+def _masks_by_definition(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Edge masks pixel by pixel: pixel (y, x) is entry (y + 1, x // 2 + 1) of colour
+    (x + y) & 1; 1 where the neighbour lies inside the image, 0 everywhere else."""
+    shape = (4, height + 2, (width + 1) // 2 + 2)
+    masks = np.zeros((2, *shape), np.float32)
+    for y in range(height):
+        for x in range(width):
+            m = masks[(x + y) & 1]
+            m[:, y + 1, x // 2 + 1] = (x > 0, x < width - 1, y > 0, y < height - 1)
+    return masks[0], masks[1]
+
+
+@pytest.mark.parametrize("height", [1, 2, 3, 9, 40, 41])
+@pytest.mark.parametrize("width", [1, 2, 3, 9, 52, 53])
+def test_border_masks_overwrite_stale_values_with_their_definition(height: int, width: int
+                                                                   ) -> None:
+    from processing.solvers.lagged import write_border_masks
+
+    red_want, black_want = _masks_by_definition(height, width)
+    red, black = np.full_like(red_want, np.nan), np.full_like(black_want, 7.0)
+    write_border_masks(height, width, red, black)
+    np.testing.assert_array_equal(red, red_want)
+    np.testing.assert_array_equal(black, black_want)

@@ -53,14 +53,22 @@ def write_border_masks(height: int, width: int, red: np.ndarray, black: np.ndarr
     red[:] = 0.0
     black[:] = 0.0
     for y in range(height):
-        for x in range(width):
-            m = red if (x + y) % 2 == 0 else black
-            yc = y + 1
-            xc = x // 2 + 1
-            m[0, yc, xc] = 1.0 if x > 0 else 0.0
-            m[1, yc, xc] = 1.0 if x < width - 1 else 0.0
-            m[2, yc, xc] = 1.0 if y > 0 else 0.0
-            m[3, yc, xc] = 1.0 if y < height - 1 else 0.0
+        yc = y + 1
+        for colour in range(2):
+            m = red if colour == 0 else black
+            # This colour's pixels of row y: x = x0, x0 + 2, ... at compact columns 1..count.
+            x0 = (colour - y) & 1
+            count = (width - x0 + 1) // 2
+            for k in range(4):
+                m[k, yc, 1:count + 1] = 1.0
+            if x0 == 0:
+                m[0, yc, 1] = 0.0  # x = 0 has no left neighbour
+            if x0 + 2 * (count - 1) == width - 1:
+                m[1, yc, count] = 0.0  # x = W - 1 has no right neighbour
+            if y == 0:
+                m[2, yc, 1:count + 1] = 0.0
+            if y == height - 1:
+                m[3, yc, 1:count + 1] = 0.0
 
 
 @numba.njit(cache=True, error_model="numpy")
