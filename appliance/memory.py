@@ -10,10 +10,13 @@ appliance run showed 9.6 million minor page faults and 29 s of system time. Fixi
 thresholds makes the fast case the normal one. Freed memory then stays in the process
 (up to the trim threshold), which costs a little resident memory and nothing else.
 
-Still needed after the solvers moved to preallocated workspaces
-(:mod:`processing.solvers.variational`): without these settings a warm triple of the chain still
-took 3700 minor page faults and 8 ms of system time (measured), from the
-full-size numpy and OpenCV temporaries around the solvers.
+Since the solvers work in one workspace buffer per thread
+(:mod:`processing.solvers.variational`), the chain itself hardly allocates: a warm triple
+faults 14 pages with these settings or without them (a process after three triples; in
+its first hundred triples 107 against 130), and a 120 s one-worker run read the same
+(2026-12-07, docs/performance.md). The settings stay because nothing measured says they
+cost anything there and the bench's two workers read slightly more pairs/s with them (72.6
+against 71.1 pairs/s, three runs each, within their spread).
 
 The price is that the process's resident memory is the high-water mark of its heap: a
 burst (a cold start's full pyramid, results queued while the daemon was starved of CPU)
