@@ -1,7 +1,7 @@
 """The simulated site's truth: computed from the scene's files two frames at a time.
 
-A frame holds the scene's 3D fields; holding the whole loop at once had the daemon peak at
-0.9 GB (320x240) and 3.3 GB (640x480) for the truth alone.
+A frame holds the scene's 3D fields; the whole loop at once takes 0.9 GB (320x240) or
+3.3 GB (640x480) of the daemon's memory.
 """
 
 from __future__ import annotations

@@ -204,7 +204,7 @@ class SceneTruth:
         self.schedule = ReleaseSchedule.from_json(meta.get("release_schedule"))
         self._rate_g_s = float(meta.get("release_rate_g_s", 0.0))
         # Two frames at a time: a frame holds the scene's 3D fields, and the whole loop at
-        # once had the daemon peak at 0.9 GB (320x240) and 3.3 GB (640x480) for this alone.
+        # once takes 0.9 GB (320x240) or 3.3 GB (640x480) of the daemon's memory.
         self._means: list[np.ndarray | None] = []
         # The true release of every frame (scene version 2 on: it follows the schedule and
         # the fluctuation exactly), else the nominal one switched by the schedule.

@@ -229,7 +229,7 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int
 
 
 @numba.njit(cache=True, error_model="numpy")
-def prepare_workspace(ws: Workspace, width: int) -> None:
+def prepare_workspace(ws: Workspace) -> None:
     """Make a workspace carved from memory an earlier level used ready for the kernels.
 
     Writes the masks and zeroes, in every compact array of a colour, the entries that hold
@@ -237,7 +237,8 @@ def prepare_workspace(ws: Workspace, width: int) -> None:
     pixel's entry before it reads it, so these are all that an earlier level's values
     could reach the solution through (``tests/test_solver_workspace.py``).
     """
-    write_border_masks(ws.shape[0], width, ws.masks[0], ws.masks[1])
+    height, width = ws.shape
+    write_border_masks(height, width, ws.masks[0], ws.masks[1])
     for c in range(2):
         for k in range(ws.inputs.shape[0]):
             redblack.clear_outside(ws.inputs[k, c], c, width)

@@ -105,7 +105,7 @@ def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
     ws = Workspace(shape=(height, width), inputs=inputs, x1=x1, x2=x2, x1_0=x1_0, x2_0=x2_0,
                    coefs=coefs, masks=masks, a11=pair(), a22=pair(), psi1=pair(),
                    psi2=pair(), s2=take(1)[0])
-    lagged.prepare_workspace(ws, width)
+    lagged.prepare_workspace(ws)
     return ws
 
 
@@ -113,10 +113,10 @@ def workspace(shape: tuple[int, int]) -> Workspace:
     """The workspace of this thread for level size ``shape`` (H, W).
 
     All level sizes of a thread share one buffer, grown to the largest size asked for:
-    the solvers work on one level at a time, and one buffer keeps a worker's working set
-    to its finest level's arrays, where one set per level and active-region size
-    (119 sizes in 120 bench triples) had reached 120 MB and allocated 2.3 sets a triple.
-    A workspace is valid until this thread asks for another size.
+    the solvers work on one level at a time, so one buffer keeps a worker's working set to
+    its finest level's arrays. A workspace per size would allocate and keep a set for every
+    level and every active-region box (120 bench triples ask for 119 sizes). A workspace
+    is valid until this thread asks for another size.
     """
     key = (int(shape[0]), int(shape[1]))
     ws: Workspace | None = getattr(_local, "ws", None)
