@@ -44,7 +44,7 @@ def _poisoned(fn: Callable[[], object]) -> Callable[[], object]:
     """``fn`` after a larger level filled every plane of the thread's buffer with NaN."""
     def run() -> object:
         ws = variational.workspace((64, 80))
-        for a in (ws.inputs, *ws.coefs, *ws.masks, ws.s2):
+        for a in (ws.inputs, *ws.coefs, ws.s2):
             a.fill(np.nan)
         for pair in (ws.x1, ws.x2, ws.x1_0, ws.x2_0, ws.a11, ws.a22, ws.psi1, ws.psi2):
             for a in pair:
@@ -116,12 +116,27 @@ def _masks_by_definition(height: int, width: int) -> tuple[np.ndarray, np.ndarra
 
 @pytest.mark.parametrize("height", [1, 2, 3, 9, 40, 41])
 @pytest.mark.parametrize("width", [1, 2, 3, 9, 52, 53])
-def test_border_masks_overwrite_stale_values_with_their_definition(height: int, width: int
-                                                                   ) -> None:
-    from processing.solvers.lagged import write_border_masks
+def test_edge_weights_are_the_mean_psi_inside_and_zero_across_borders_and_padding(
+        height: int, width: int) -> None:
+    """Every entry of the four weight planes is written: psi' means times the edge masks
+    of their definition, whatever the planes held before."""
+    from processing.solvers import redblack
+    from processing.solvers.lagged import edge_weights
 
-    red_want, black_want = _masks_by_definition(height, width)
-    red, black = np.full_like(red_want, np.nan), np.full_like(black_want, 7.0)
-    write_border_masks(height, width, red, black)
-    np.testing.assert_array_equal(red, red_want)
-    np.testing.assert_array_equal(black, black_want)
+    rng = np.random.default_rng(height * 100 + width)
+    shape = redblack.compact_shape(height, width)
+    psi = [rng.uniform(0.5, 2.0, shape).astype(np.float32) for _ in range(2)]
+    masks = _masks_by_definition(height, width)
+    for c in range(2):
+        coef = np.full((redblack.N_PLANES, *shape), np.nan, np.float32)
+        edge_weights(psi[c], psi[1 - c], width, 0.3, c, coef, redblack.W1)
+        own, other = psi[c], psi[1 - c]
+        half = np.float32(0.15)
+        for yc in range(1, height + 1):
+            off = (yc - 1 + c) & 1
+            n = shape[1] - 2
+            neighbours = (other[yc, off:off + n], other[yc, off + 1:off + 1 + n],
+                          other[yc - 1, 1:n + 1], other[yc + 1, 1:n + 1])
+            for k, q in enumerate(neighbours):
+                want = half * (own[yc, 1:n + 1] + q) * masks[c][k, yc, 1:n + 1]
+                np.testing.assert_array_equal(coef[redblack.W1 + k, yc, 1:n + 1], want)

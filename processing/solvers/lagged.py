@@ -42,36 +42,6 @@ Workspace = tuple
 
 
 @numba.njit(cache=True, error_model="numpy")
-def write_border_masks(height: int, width: int, red: np.ndarray, black: np.ndarray) -> None:
-    """Edge-existence masks for red and black, (4, H+2, W2+2) each: left, right, up, down.
-
-    Every entry is written: 1 where the pixel has that neighbour inside the image, 0 at
-    image borders, in the halo and at padding entries (odd W), so that multiplying edge
-    weights by the mask imposes Neumann boundary conditions and keeps padding entries
-    decoupled.
-    """
-    red[:] = 0.0
-    black[:] = 0.0
-    for y in range(height):
-        yc = y + 1
-        for colour in range(2):
-            m = red if colour == 0 else black
-            # This colour's pixels of row y: x = x0, x0 + 2, ... at compact columns 1..count.
-            x0 = (colour - y) & 1
-            count = (width - x0 + 1) // 2
-            for k in range(4):
-                m[k, yc, 1:count + 1] = 1.0
-            if x0 == 0:
-                m[0, yc, 1] = 0.0  # x = 0 has no left neighbour
-            if x0 + 2 * (count - 1) == width - 1:
-                m[1, yc, count] = 0.0  # x = W - 1 has no right neighbour
-            if y == 0:
-                m[2, yc, 1:count + 1] = 0.0
-            if y == height - 1:
-                m[3, yc, 1:count + 1] = 0.0
-
-
-@numba.njit(cache=True, error_model="numpy")
 def _fill_neumann_ghosts(red: np.ndarray, black: np.ndarray, width: int) -> None:
     """Copy border pixels into the halo neighbours that central differences read.
 
@@ -169,7 +139,7 @@ def lagged_psi(
 def edge_weights(
     psi_own: np.ndarray,
     psi_other: np.ndarray,
-    mask: np.ndarray,
+    width: int,
     scale: float,
     colour: int,
     coef: np.ndarray,
@@ -177,30 +147,47 @@ def edge_weights(
 ) -> None:
     """Write the four edge weights of one colour into ``coef[plane:plane + 4]``.
 
-    Weight = ``scale`` * mean of the two pixels' psi' * edge mask (Neumann borders).
-    ``plane`` is :data:`processing.solvers.redblack.W1` or :data:`~processing.solvers.redblack.W2`.
+    Weight = ``scale`` * mean of the two pixels' psi', and 0 for an edge that leaves the
+    image (Neumann borders) and at padding entries (odd W), which keeps those decoupled.
+    ``width`` is the image width W; ``plane`` is :data:`processing.solvers.redblack.W1` or
+    :data:`~processing.solvers.redblack.W2`.
     """
     h = psi_own.shape[0] - 2
     n = psi_own.shape[1] - 2
     e = n + 1
     half = np.float32(0.5 * scale)
+    zero = np.float32(0.0)
     for yc in range(1, h + 1):
-        off = (yc - 1 + colour) & 1
+        y = yc - 1
+        off = (y + colour) & 1
+        # This colour's pixels of row y: x = x0, x0 + 2, ... at compact columns 1..count.
+        x0 = (colour - y) & 1
+        count = (width - x0 + 1) // 2
+        up = np.float32(1.0) if y > 0 else zero
+        down = np.float32(1.0) if y < h - 1 else zero
         p = psi_own[yc, 1:e]
         pl = psi_other[yc, off:off + n]
         pr = psi_other[yc, off + 1:off + 1 + n]
         pu = psi_other[yc - 1, 1:e]
         pd = psi_other[yc + 1, 1:e]
-        ml, mr, mu, md = mask[0, yc, 1:e], mask[1, yc, 1:e], mask[2, yc, 1:e], mask[3, yc, 1:e]
         wl = coef[plane, yc, 1:e]
         wr = coef[plane + 1, yc, 1:e]
         wu = coef[plane + 2, yc, 1:e]
         wd = coef[plane + 3, yc, 1:e]
-        for i in range(n):
-            wl[i] = half * (p[i] + pl[i]) * ml[i]
-            wr[i] = half * (p[i] + pr[i]) * mr[i]
-            wu[i] = half * (p[i] + pu[i]) * mu[i]
-            wd[i] = half * (p[i] + pd[i]) * md[i]
+        for i in range(count):
+            wl[i] = half * (p[i] + pl[i])
+            wr[i] = half * (p[i] + pr[i])
+            wu[i] = half * (p[i] + pu[i]) * up
+            wd[i] = half * (p[i] + pd[i]) * down
+        if x0 == 0:
+            wl[0] = zero  # x = 0 has no left neighbour
+        if x0 + 2 * (count - 1) == width - 1:
+            wr[count - 1] = zero  # x = W - 1 has no right neighbour
+        for i in range(count, n):
+            wl[i] = zero
+            wr[i] = zero
+            wu[i] = zero
+            wd[i] = zero
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -232,13 +219,12 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int
 def prepare_workspace(ws: Workspace) -> None:
     """Make a workspace carved from memory an earlier level used ready for the kernels.
 
-    Writes the masks and zeroes, in every compact array of a colour, the entries that hold
-    no pixel (:func:`processing.solvers.redblack.clear_outside`): every kernel writes a
-    pixel's entry before it reads it, so these are all that an earlier level's values
-    could reach the solution through (``tests/test_solver_workspace.py``).
+    Zeroes, in every compact array of a colour, the entries that hold no pixel
+    (:func:`processing.solvers.redblack.clear_outside`): every kernel writes a pixel's
+    entry before it reads it, so these are all that an earlier level's values could reach
+    the solution through (``tests/test_solver_workspace.py``).
     """
-    height, width = ws.shape
-    write_border_masks(height, width, ws.masks[0], ws.masks[1])
+    width = ws.shape[1]
     for c in range(2):
         for k in range(ws.inputs.shape[0]):
             redblack.clear_outside(ws.inputs[k, c], c, width)
@@ -377,10 +363,10 @@ def lagged_iterations(
             lagged_psi((ws.x2,), w, eps, ws.s2, ws.psi2)
         for c in range(2):
             coef = ws.coefs[c]
-            edge_weights(ws.psi1[c], ws.psi1[1 - c], ws.masks[c], weights[0], c, coef,
+            edge_weights(ws.psi1[c], ws.psi1[1 - c], w, weights[0], c, coef,
                          redblack.W1)
             if not joint:  # a joint penaliser's unknowns share the W1 planes
-                edge_weights(ws.psi2[c], ws.psi2[1 - c], ws.masks[c], weights[1], c, coef,
+                edge_weights(ws.psi2[c], ws.psi2[1 - c], w, weights[1], c, coef,
                              redblack.W2)
             data_terms(terms, ws, c, eps)
             finish_diagonals(coef, ws.a11[c], ws.a22[c], redblack.W1 if joint else redblack.W2)

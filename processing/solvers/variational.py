@@ -50,8 +50,6 @@ class Workspace(NamedTuple):
         The two unknowns and their values at the warp (for the increments).
     coefs : (ndarray, ndarray), shape (13, H+2, W2+2) each
         The linear system (planes of :mod:`processing.solvers.redblack`).
-    masks : (ndarray, ndarray), shape (4, H+2, W2+2) each
-        Edge-existence masks (:func:`processing.solvers.lagged.write_border_masks`).
     a11, a22, psi1, psi2 : (ndarray, ndarray)
         Data diagonals and the lagged smoothness weights of the two penalisers.
     s2 : ndarray
@@ -65,7 +63,6 @@ class Workspace(NamedTuple):
     x1_0: tuple[np.ndarray, np.ndarray]
     x2_0: tuple[np.ndarray, np.ndarray]
     coefs: tuple[np.ndarray, np.ndarray]
-    masks: tuple[np.ndarray, np.ndarray]
     a11: tuple[np.ndarray, np.ndarray]
     a22: tuple[np.ndarray, np.ndarray]
     psi1: tuple[np.ndarray, np.ndarray]
@@ -74,16 +71,16 @@ class Workspace(NamedTuple):
 
 
 #: Compact planes of one level size in a workspace: the inputs, four pairs of unknowns,
-#: two systems, two sets of masks, four pairs of diagonals and weights, the scratch.
-N_PLANES = 2 * N_INPUTS + 8 + 2 * redblack.N_PLANES + 8 + 8 + 1
+#: two systems, four pairs of diagonals and weights, the scratch.
+N_PLANES = 2 * N_INPUTS + 8 + 2 * redblack.N_PLANES + 8 + 1
 
 _local = threading.local()
 
 
 def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
     """A workspace for an (H, W) level whose arrays are C-contiguous views of ``buffer``
-    (at least :data:`N_PLANES` compact planes), ready for the kernels: the masks written,
-    every entry that holds no pixel zeroed (:func:`processing.solvers.redblack.clear_outside`),
+    (at least :data:`N_PLANES` compact planes), ready for the kernels: every entry that
+    holds no pixel zeroed (:func:`processing.solvers.redblack.clear_outside`),
     whatever an earlier level left there."""
     cshape = redblack.compact_shape(height, width)
     plane = cshape[0] * cshape[1]
@@ -101,9 +98,8 @@ def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
     inputs = take(2 * N_INPUTS).reshape(N_INPUTS, 2, *cshape)
     x1, x2, x1_0, x2_0 = pair(), pair(), pair(), pair()
     coefs = take(redblack.N_PLANES), take(redblack.N_PLANES)
-    masks = take(4), take(4)
     ws = Workspace(shape=(height, width), inputs=inputs, x1=x1, x2=x2, x1_0=x1_0, x2_0=x2_0,
-                   coefs=coefs, masks=masks, a11=pair(), a22=pair(), psi1=pair(),
+                   coefs=coefs, a11=pair(), a22=pair(), psi1=pair(),
                    psi2=pair(), s2=take(1)[0])
     lagged.prepare_workspace(ws)
     return ws
