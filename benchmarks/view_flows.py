@@ -25,6 +25,7 @@ from appliance.evaluation.sceneflow import common_mean_velocities
 from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
 from processing.flow.brox import brox_optical_flow
+from processing.solvers.derivatives import pixel_grid
 from processing.synthetic.reference import triplet_reference
 
 
@@ -46,8 +47,7 @@ def implied_change(u_left: np.ndarray, u_right: np.ndarray, disparity: np.ndarra
         The right flow sampled (bilinear) at each left pixel's partner, subtracted from the
         left flow; partners outside the right view take its border value.
     """
-    h, w = u_left.shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    xx, yy = pixel_grid(u_left.shape)
     partner = xx - np.asarray(disparity, np.float32)
     u_r = cv2.remap(np.asarray(u_right, np.float32), partner, yy, cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REPLICATE)

@@ -3,8 +3,8 @@
 numba's on-disk cache (``cache=True``) checks only the file that defines a kernel: a kernel
 that calls into another module (the solvers' skeleton calling the SOR sweeps, the data
 terms, the layout helpers) keeps the callee compiled into its cache entry, and after that
-other file changes, the cached caller still runs the old callee (numba documents it; numba
-issue 1833). After a ``git pull`` of an editable install, or a copy of new sources over
+other file changes, the cached caller still runs the old callee (numba's documentation of
+``cache=True`` says so). After a ``git pull`` of an editable install, or a copy of new sources over
 old ones, the chain would compute with a mix of old and new code and say nothing.
 
 :func:`use_versioned_cache`, called when :mod:`processing` is imported and before any

@@ -159,10 +159,9 @@ def edge_weights(
     zero = np.float32(0.0)
     for yc in range(1, h + 1):
         y = yc - 1
+        # The row's column parity: its first pixel's x, and where its left neighbours sit.
         off = (y + colour) & 1
-        # This colour's pixels of row y: x = x0, x0 + 2, ... at compact columns 1..count.
-        x0 = (colour - y) & 1
-        count = (width - x0 + 1) // 2
+        count = redblack.row_pixels(colour, y, width)
         up = np.float32(1.0) if y > 0 else zero
         down = np.float32(1.0) if y < h - 1 else zero
         p = psi_own[yc, 1:e]
@@ -179,9 +178,9 @@ def edge_weights(
             wr[i] = half * (p[i] + pr[i])
             wu[i] = half * (p[i] + pu[i]) * up
             wd[i] = half * (p[i] + pd[i]) * down
-        if x0 == 0:
+        if off == 0:
             wl[0] = zero  # x = 0 has no left neighbour
-        if x0 + 2 * (count - 1) == width - 1:
+        if off + 2 * (count - 1) == width - 1:
             wr[count - 1] = zero  # x = W - 1 has no right neighbour
         for i in range(count, n):
             wl[i] = zero

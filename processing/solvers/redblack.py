@@ -54,6 +54,14 @@ def empty_system(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def row_pixels(colour: int, y: int, width: int) -> int:
+    """How many pixels of ``colour`` row ``y`` of a W-wide image has: they are x = x0,
+    x0 + 2, ... with x0 = (colour + y) & 1 (the row's column parity, ``off`` in
+    :func:`_sweep_row`), at compact columns 1..count; a column beyond holds no pixel."""
+    return (width - ((colour + y) & 1) + 1) // 2
+
+
+@numba.njit(cache=True, error_model="numpy")
 def clear_outside(a: np.ndarray, colour: int, width: int) -> None:
     """Zero the entries of a compact array (H+2, W2+2) that hold no pixel: the halo and, for
     odd W, the padding entry of the rows where ``colour`` has one pixel fewer.
@@ -68,9 +76,7 @@ def clear_outside(a: np.ndarray, colour: int, width: int) -> None:
     for yc in range(1, hh - 1):
         a[yc, 0] = 0.0
         a[yc, ww - 1] = 0.0
-        # Row y's pixels of this colour start at x0 = (colour - y) & 1 and fill compact
-        # columns 1..count.
-        count = (width - ((colour - (yc - 1)) & 1) + 1) // 2
+        count = row_pixels(colour, yc - 1, width)
         for xc in range(count + 1, n + 1):
             a[yc, xc] = 0.0
 
