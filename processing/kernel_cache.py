@@ -66,10 +66,16 @@ def prune(root: Path, current: Path, keep: int = KEEP_VERSIONS) -> list[Path]:
     """Remove the least recently used version folders under ``root`` beyond ``keep``
     (``current`` never); returns what was removed. Only folders named like a key are
     touched."""
-    versions = [p for p in root.iterdir() if p.is_dir() and len(p.name) == KEY_LENGTH
-                and all(c in "0123456789abcdef" for c in p.name) and p != current]
-    versions.sort(key=lambda p: p.stat().st_mtime, reverse=True)
-    removed = versions[max(keep - 1, 0):]
+    used: list[tuple[float, Path]] = []
+    for p in root.iterdir():
+        if p.is_dir() and len(p.name) == KEY_LENGTH and p != current \
+                and all(c in "0123456789abcdef" for c in p.name):
+            try:
+                used.append((p.stat().st_mtime, p))
+            except FileNotFoundError:  # another process (a test runner's) pruned it
+                continue
+    used.sort(reverse=True)
+    removed = [p for _, p in used[max(keep - 1, 0):]]
     for p in removed:
         shutil.rmtree(p, ignore_errors=True)
     return removed

@@ -7,12 +7,15 @@ makes any change compile afresh.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+import pytest
 
 from processing import kernel_cache
 
@@ -80,6 +83,34 @@ def test_old_versions_beyond_the_kept_ones_are_removed(tmp_path: Path) -> None:
     # the current one and the KEEP_VERSIONS - 1 most recently used others stay
     assert sorted(p.name for p in removed) == [p.name for p in old[3:]]
     assert kept == sorted([current.name, other.name, *(p.name for p in old[:3])])
+
+
+def test_a_version_folder_removed_by_another_process_meanwhile_is_passed_over(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two test processes start together on a fresh machine: one prunes a folder the
+    other is looking at. The other still uses its version folder (a failure there would
+    leave numba's own cache beside the sources, whose staleness the folders prevent)."""
+    root = tmp_path / "numba"
+    root.mkdir()
+    gone = root / f"{1:016x}"
+    gone.mkdir()
+    real_stat = Path.stat
+    looked = []
+
+    def stat(self: Path, *args: object, **kwargs: object) -> os.stat_result:
+        if self == gone:
+            looked.append(self)
+            if len(looked) > 1:  # seen as a folder, gone when its age is read
+                shutil.rmtree(gone, ignore_errors=True)
+                raise FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), str(gone))
+        return real_stat(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Path, "stat", stat)
+    env = {"NUMBA_CACHE_DIR": str(root)}
+    folder = kernel_cache.use_versioned_cache(env)
+    assert folder == root / kernel_cache.source_key()
+    assert env["NUMBA_CACHE_DIR"] == str(folder)
+    assert len(looked) == 2 and not gone.exists()
 
 
 def test_without_numba_cache_dir_the_users_cache_folder_is_the_root() -> None:
