@@ -16,12 +16,9 @@ from processing.chain import (
     initial_scale,
 )
 from processing.chain.region import measured_area
-from processing.preprocess.differential import (
-    PreprocessedTriple,
-    scale_samples,
-    triple_border_px,
-)
+from processing.preprocess.differential import PreprocessedTriple, triple_border_px
 from processing.preprocess.registration import estimate_shift_checked
+from processing.preprocess.stereo_triple import scale_samples
 from processing.synthetic.cameras import pixel_mean_background
 from processing.synthetic.imaging import (
     Background,

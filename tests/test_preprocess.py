@@ -9,10 +9,10 @@ from processing.calibration.radiometric import CharacteristicCurve
 from processing.preprocess.differential import (
     apply_rectification,
     preprocess_camera,
-    preprocess_stereo,
     radiometric_correction,
 )
 from processing.preprocess.normalisation import DiffScaleTracker, normalise_difference
+from processing.preprocess.stereo_triple import preprocess_stereo
 from processing.preprocess.translation import warp_translation
 
 

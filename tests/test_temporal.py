@@ -107,7 +107,7 @@ def test_each_frame_is_corrected_and_rectified_once_with_the_same_result() -> No
     """Curves and rectification maps: the chain's per-frame cache gives exactly the
     differential images of pre-processing the raw triple directly."""
     from processing.calibration.radiometric import CharacteristicCurve
-    from processing.preprocess.differential import preprocess_stereo
+    from processing.preprocess.stereo_triple import preprocess_stereo
 
     seq = sequence(4)
     h, w = SIZE
@@ -139,7 +139,7 @@ def test_a_difference_left_on_its_grid_is_reused_with_the_same_result(
     the moving plane) is D(t0) of the next: taken from the state, the differential images
     are exactly those of pre-processing each triple on its own with the same shifts;
     accepted jitter (the still plane) moves t1, and the difference is computed anew."""
-    from processing.preprocess.differential import preprocess_stereo
+    from processing.preprocess.stereo_triple import preprocess_stereo
     from processing.preprocess.translation import warp_translation
 
     left, right, times = sequence(6)

@@ -145,3 +145,65 @@ def _put_in_child(table) -> None:
 
     SharedImages(table).put(difference_key(1, 99.0, 100.0, (0.5, 0.0), "x"),
                             (np.full((4, 5), 7.0, np.float32),))
+
+
+class _Lockstep:
+    """An image table two worker threads share, where each triple's first look-up waits
+    for the other worker's: the two start and compute their triples at the same time, as
+    workers running flat out do."""
+
+    def __init__(self, barrier: object) -> None:
+        import threading
+
+        self.table: dict[tuple, tuple[np.ndarray, ...]] = {}
+        self.lock = threading.Lock()
+        self.barrier = barrier
+
+    def put(self, key: tuple, arrays: tuple[np.ndarray, ...]) -> None:
+        with self.lock:
+            self.table[key] = tuple(a.copy() for a in arrays)
+
+    def get(self, key: tuple, count: int) -> tuple[np.ndarray, ...] | None:
+        if key[0] == 0.0:  # the left camera's look-up: once per triple
+            self.barrier.wait()  # type: ignore[attr-defined]
+        with self.lock:
+            hit = self.table.get(key)
+        return None if hit is None or len(hit) != count else tuple(a.copy() for a in hit)
+
+
+def test_workers_computing_side_by_side_find_each_others_differences() -> None:
+    """Two workers whose triples run side by side (each triple's D(t0) is the D(t1) the
+    other computes at that moment) find it in every triple but the first: each shares its
+    D(t1) before it looks up D(t0). Results equal to the bit to workers that share
+    nothing."""
+    import threading
+
+    seq = sequence(10)
+    params = dataclasses.replace(PARAMS, register=False)
+    share = _Lockstep(threading.Barrier(2, timeout=120))
+    together = [ChainState(stride=2, images=share) for _ in range(2)]
+    results: dict[int, object] = {}
+    errors: list[BaseException] = []
+
+    def work(offset: int) -> None:
+        try:
+            for k in range(offset, 8, 2):
+                results[k] = compute_scene_flow(*triple(seq, k), GEOMETRY, params,
+                                                together[offset])
+        except BaseException as e:  # reported below, with the other thread released
+            errors.append(e)
+            share.barrier.abort()
+
+    threads = [threading.Thread(target=work, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=300)
+    assert not errors, errors
+    # the left worker's first triple has no predecessor; every other D(t0) was found
+    assert [s.differences_reused for s in together] == [3 * 2, 4 * 2]
+    apart = [ChainState(stride=2) for _ in range(2)]
+    for k in range(8):
+        b = compute_scene_flow(*triple(seq, k), GEOMETRY, params, apart[k % 2])
+        for f in ("flow", "disparity", "disparity_change", "velocity", "gas_mask"):
+            np.testing.assert_array_equal(getattr(results[k], f), getattr(b, f))

@@ -54,12 +54,9 @@ from processing.chain.state import ChainState, Times, WarmStart, solver_options
 from processing.chain.summary import GasSummary, summarize_frame
 from processing.flow.brox import brox_optical_flow
 from processing.preprocess.depth_gate import apply_gate, out_of_band_motion
-from processing.preprocess.differential import (
-    PreprocessedTriple,
-    rescale_differences,
-    scale_samples,
-)
+from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.opaque_gate import remove_opaque_edges
+from processing.preprocess.stereo_triple import rescale_differences, scale_samples
 from processing.segmentation.segment import segment_gas
 from processing.solvers.variational import PyramidCache
 from processing.stereo.coherence import history_weight, smooth_disparity_change

@@ -2,7 +2,8 @@
 stream already knows: each raw frame corrected (radiometric curve, rectification, then with
 ``binning`` the means of k x k blocks) only once per stream, the registration's shifts
 estimated once per frame pair, and D(t0) taken from the previous triple's D(t1)
-(:class:`processing.chain.state.ChainState`)."""
+(:class:`processing.chain.state.ChainState`), looked up only after this triple's own D(t1)
+(:func:`processing.preprocess.stereo_triple.preprocess_stereo`)."""
 
 from __future__ import annotations
 
@@ -17,10 +18,11 @@ from processing.chain.scale import gas_radiance
 from processing.chain.state import ChainState, Times
 from processing.preprocess.differential import (
     PreprocessedTriple,
+    SecondDifference,
     apply_rectification,
-    preprocess_stereo,
     radiometric_correction,
 )
+from processing.preprocess.stereo_triple import KnownDiff0, preprocess_stereo
 from processing.stereo_geometry import Maps, StereoGeometry
 
 #: Both cameras' pre-processed triples, (left, right).
@@ -69,20 +71,21 @@ def preprocess_triple(left: Sequence[np.ndarray], right: Sequence[np.ndarray], t
             (left, geometry.curve_left, geometry.maps_left),
             (right, geometry.curve_right, geometry.maps_right)))
     ]
-    shift01 = tuple(k[0][0] if k[0] else None for k in known)
-    # D(t0) of the previous triple's D(t1) (:meth:`ChainState.known_differences`); the
-    # differences depend on these settings too, and without registration no frame moves.
+    # D(t0) of the previous triple's D(t1) (:meth:`ChainState.exchange_differences`),
+    # looked up once this triple's D(t1) are computed and shared; the differences depend
+    # on these settings too.
     settings = (lg, contrast_floor, params.denoise_lambda)
-    diff0 = stream.known_differences(times, shift01 if params.register else ((0.0, 0.0),) * 2,
-                                     settings)
+
+    def known_diff0(seconds: tuple[SecondDifference, SecondDifference]) -> KnownDiff0:
+        return stream.exchange_differences(times, seconds, settings)
+
     pl, pr = preprocess_stereo(
         corrected[0], corrected[1], scale=scale, register=params.register,
         denoise_lambda=params.denoise_lambda,
-        shift01=shift01,  # type: ignore[arg-type]
+        shift01=tuple(k[0][0] if k[0] else None for k in known),  # type: ignore[arg-type]
         shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
         max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
-        diff0=diff0,  # type: ignore[arg-type]
+        diff0=known_diff0,
     )
-    stream.remember_differences(times, (pl, pr), settings)
     pl, pr = stream.remember_shifts(times, known, (pl, pr))
     return pl, pr

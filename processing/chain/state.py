@@ -21,7 +21,7 @@ The differential image D(t1, t2) of one triple is D(t0, t1) of the next only on 
 pixel grid: :mod:`processing.preprocess.differential` registers t1 and t2 onto t0, so the
 next triple needs it on the t1 grid. When the triple left t1 where it was (its t0 -> t1 shift
 is zero: no jitter, a rejected shift, registration off) the two are the same numbers, and
-the next triple takes D(t1) raw and denoised from here (:meth:`ChainState.known_differences`:
+the next triple takes D(t1) raw and denoised from here (:meth:`ChainState.exchange_differences`:
 one difference and one denoising less per camera, about 1.2 ms of a warm 320x240 triple);
 otherwise re-using it would cost an interpolation, and it is computed anew. With two
 workers alternating, the other worker's triple left that difference: it comes through
@@ -46,7 +46,7 @@ import numpy as np
 
 from processing.chain.images import ImageKey, ImageShare, difference_key
 from processing.chain.shifts import KnownShift, LocalShiftMemo, ShiftMemo
-from processing.preprocess.differential import PreprocessedTriple
+from processing.preprocess.differential import PreprocessedTriple, SecondDifference
 from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile
 
 #: Strides whose succession the shared capture times can prove (see the module docstring).
@@ -119,7 +119,7 @@ class ChainState:
     differences : dict
         Per camera: the key (:func:`processing.chain.images.difference_key`, as in
         ``images``) and the (raw, denoised) D(t1) of the last triple that left its t1
-        unmoved (:meth:`known_differences`).
+        unmoved (:meth:`exchange_differences`).
     differences_reused : int
         How many D(t0) came from ``differences`` or ``images`` instead of being computed
         again.
@@ -293,47 +293,49 @@ class ChainState:
                                            rejected=(rejected[0], rejected[1])))
         return out
 
-    def known_differences(self, times: Times, shift01: Sequence[tuple[float, float] | None],
-                          settings: Hashable
-                          ) -> tuple[tuple[np.ndarray, np.ndarray] | None, ...]:
-        """Per camera (left, right): D(t0) raw and denoised when the previous triple (this
-        state's, or another worker's through ``images``) computed it as its D(t1), for
-        ``diff0`` of
-        :func:`processing.preprocess.differential.preprocess_camera`.
+    def exchange_differences(self, times: Times, seconds: Sequence[SecondDifference],
+                             settings: Hashable) -> tuple[tuple[np.ndarray, np.ndarray] | None,
+                                                          tuple[np.ndarray, np.ndarray] | None]:
+        """Per camera (left, right): this triple's D(t0) raw and denoised when the previous
+        triple (this state's, or another worker's through ``images``) computed it as its
+        D(t1), for ``diff0`` of
+        :func:`processing.preprocess.differential.complete_triple`; None: compute it.
 
-        ``shift01`` are this triple's known t0 -> t1 shifts (None: not known, then nothing
-        is reused) and ``settings`` whatever else the differences depend on (the gas
-        radiance, the contrast floor, the denoising weight).
+        ``seconds`` are this triple's registered frames and D(t1) per camera, ``settings``
+        whatever else the differences depend on (the gas radiance, the contrast floor, the
+        denoising weight). Each camera's D(t1) is shared first, then D(t0) looked up, then
+        the D(t1) kept for this state's next triple: a worker whose D(t0) the other one
+        computes at the same time then mostly finds it, and so does the other worker.
+        A D(t1) is kept and shared only when it lies on t1's own grid (the triple's
+        t0 -> t1 shift is (0, 0)); otherwise the camera's older one is forgotten.
         """
+        mine = []
+        for cam, second in enumerate(seconds):
+            s01, s12 = second.shifts
+            entry = None
+            if s01 == (0.0, 0.0):
+                entry = (difference_key(cam, times[1], times[2], s12, settings),
+                         (second.raw1, second.denoised1))
+                if self.images is not None:
+                    self.images.put(*entry)
+            mine.append(entry)
         out: list[tuple[np.ndarray, np.ndarray] | None] = []
-        for cam in (0, 1):
-            s01 = shift01[cam]
+        for cam, second in enumerate(seconds):
+            key = difference_key(cam, times[0], times[1], second.shifts[0], settings)
+            hit = self.differences.get(cam)
             found = None
-            if s01 is not None:
-                key = difference_key(cam, times[0], times[1], s01, settings)
-                hit = self.differences.get(cam)
-                if hit is not None and hit[0] == key:
-                    found = hit[1]
-                elif self.images is not None:
-                    shared = self.images.get(key, 2)
-                    found = None if shared is None else (shared[0], shared[1])
+            if hit is not None and hit[0] == key:
+                found = hit[1]
+            elif self.images is not None:
+                shared = self.images.get(key, 2)
+                found = None if shared is None else (shared[0], shared[1])
             self.differences_reused += found is not None
             out.append(found)
-        return tuple(out)
-
-    def remember_differences(self, times: Times, triples: Sequence[PreprocessedTriple],
-                             settings: Hashable) -> None:
-        """Keep each camera's D(t1) for the next triple when it lies on t1's own grid (the
-        triple's t0 -> t1 shift is (0, 0)); forget the camera's older one otherwise."""
-        for cam, pre in enumerate(triples):
-            s01, s12 = pre.shifts
-            if s01 == (0.0, 0.0) and pre.denoised1 is not None:
-                key = difference_key(cam, times[1], times[2], s12, settings)
-                self.differences[cam] = (key, (pre.raw1, pre.denoised1))
-                if self.images is not None:
-                    self.images.put(key, (pre.raw1, pre.denoised1))
-            else:
+            if mine[cam] is None:
                 self.differences.pop(cam, None)
+            else:
+                self.differences[cam] = mine[cam]  # type: ignore[assignment]
+        return out[0], out[1]
 
     def corrected_frames(self, camera: int, raw: Sequence[np.ndarray], times: Times,
                          correct: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:

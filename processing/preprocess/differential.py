@@ -33,7 +33,6 @@ Why one shared, slowly varying scale: see :mod:`processing.preprocess.normalisat
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -207,6 +206,121 @@ def triple_border_px(shifts: tuple[tuple[float, float], tuple[float, float]]) ->
     return warp_border_px(s01, (s01[0] + s12[0], s01[1] + s12[1]))
 
 
+@dataclass(frozen=True)
+class SecondDifference:
+    """One camera's triple registered and its D(t1) computed: what
+    :func:`preprocess_camera` knows before it needs D(t0).
+
+    D(t0) is the previous triple's D(t1) (another worker's, when two share a stream), so
+    it is looked up only after this camera's own D(t1) exists: the longer the look-up
+    waits, the likelier the other worker has published it (:func:`complete_triple`).
+
+    Attributes
+    ----------
+    frames : tuple of 3 ndarrays, shape (H, W), float32
+        Corrected frames t0, t1, t2, with t1 and t2 registered onto t0's grid.
+    shifts, rejected
+        As :class:`PreprocessedTriple`.
+    raw1, denoised1 : ndarray, shape (H, W), float32
+        D(t1) = I(t1) - I(t2) (Eq. 2) in radiance units, and denoised.
+    """
+
+    frames: tuple[np.ndarray, np.ndarray, np.ndarray]
+    shifts: tuple[tuple[float, float], tuple[float, float]]
+    rejected: tuple[bool, bool]
+    raw1: np.ndarray
+    denoised1: np.ndarray
+
+
+def second_difference(
+    frames: Sequence[np.ndarray],
+    *,
+    curve: CharacteristicCurve | None = None,
+    maps: tuple[np.ndarray, np.ndarray] | None = None,
+    register: bool = True,
+    denoise_lambda: float = 2.0,
+    shift01: tuple[float, float] | None = None,
+    max_shift_px: float = 1.0,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
+    shift12: tuple[float, float] | None = None,
+) -> SecondDifference:
+    """Steps 1-5 of the module docstring for one camera's triple, D(t1) only.
+
+    Parameters and errors as :func:`preprocess_camera` (less ``scale`` and ``diff0``).
+    """
+    if len(frames) != 3:
+        raise ValueError(f"need exactly 3 consecutive frames (t0, t1, t2), got {len(frames)}")
+    imgs = [radiometric_correction(f, curve) for f in frames]
+    check_same_shape(imgs[0], imgs[1], "frame t0", "frame t1")
+    check_same_shape(imgs[0], imgs[2], "frame t0", "frame t2")
+    if maps is not None:
+        if len(maps) != 2:
+            raise ValueError("maps must be a pair (map_x, map_y)")
+        imgs = [apply_rectification(im, maps[0], maps[1]) for im in imgs]
+    s01: tuple[float, float] = (0.0, 0.0)
+    s12: tuple[float, float] = (0.0, 0.0)
+    rejected = [False, False]
+    if register:
+        max_shift = check_positive(max_shift_px, "max_shift_px")
+
+        def plausible(k: int) -> tuple[float, float]:
+            try:
+                shift, converged = estimate_shift_checked(imgs[k], imgs[k + 1], max_iter=20,
+                                                          max_shift=max_shift)
+            except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
+                shift, converged = (0.0, 0.0), False
+            if converged and float(np.hypot(*shift)) <= max_shift:
+                return shift
+            rejected[k] = True
+            return (0.0, 0.0)
+
+        s01 = shift01 if shift01 is not None else plausible(0)
+        s12 = shift12 if shift12 is not None else plausible(1)
+        s02 = (s01[0] + s12[0], s01[1] + s12[1])
+        imgs[1] = warp_translation(imgs[1], s01)
+        imgs[2] = warp_translation(imgs[2], s02)
+    raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
+    return SecondDifference((imgs[0], imgs[1], imgs[2]), (s01, s12),
+                            (rejected[0], rejected[1]), raw1,
+                            sobolev_denoise(raw1, denoise_lambda))
+
+
+def complete_triple(
+    second: SecondDifference,
+    *,
+    scale: float,
+    denoise_lambda: float = 2.0,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
+    diff0: tuple[np.ndarray, np.ndarray] | None = None,
+) -> PreprocessedTriple:
+    """Step 4-6 of the module docstring for D(t0), then both differences normalised.
+
+    Parameters
+    ----------
+    second : SecondDifference
+        The camera's registered triple and D(t1) (:func:`second_difference`).
+    scale, denoise_lambda, gas_radiance, min_contrast, diff0
+        As :func:`preprocess_camera`; ``diff0`` must belong to ``second``'s t0 -> t1 shift.
+
+    Returns
+    -------
+    PreprocessedTriple
+    """
+    scale = check_positive(scale, "scale")
+    if diff0 is None:
+        raw0 = differential_image(second.frames[0], second.frames[1], gas_radiance,
+                                  min_contrast)
+        smooth0 = sobolev_denoise(raw0, denoise_lambda)
+    else:
+        raw0, smooth0 = diff0
+    return PreprocessedTriple(normalise_difference(smooth0, scale),
+                              normalise_difference(second.denoised1, scale), raw0,
+                              second.raw1, second.shifts, sum(second.rejected),
+                              second.rejected, second.denoised1)
+
+
 def preprocess_camera(
     frames: Sequence[np.ndarray],
     *,
@@ -269,139 +383,10 @@ def preprocess_camera(
     ValueError
         Not exactly three frames, shapes differ, bad frame, curve, maps or parameters.
     """
-    if len(frames) != 3:
-        raise ValueError(f"need exactly 3 consecutive frames (t0, t1, t2), got {len(frames)}")
     scale = check_positive(scale, "scale")
-    imgs = [radiometric_correction(f, curve) for f in frames]
-    check_same_shape(imgs[0], imgs[1], "frame t0", "frame t1")
-    check_same_shape(imgs[0], imgs[2], "frame t0", "frame t2")
-    if maps is not None:
-        if len(maps) != 2:
-            raise ValueError("maps must be a pair (map_x, map_y)")
-        imgs = [apply_rectification(im, maps[0], maps[1]) for im in imgs]
-    s01: tuple[float, float] = (0.0, 0.0)
-    s12: tuple[float, float] = (0.0, 0.0)
-    rejected = [False, False]
-    if register:
-        max_shift = check_positive(max_shift_px, "max_shift_px")
-
-        def plausible(k: int) -> tuple[float, float]:
-            try:
-                shift, converged = estimate_shift_checked(imgs[k], imgs[k + 1], max_iter=20,
-                                                          max_shift=max_shift)
-            except ValueError:  # a flat frame (uniform sky, no noise): nothing to lock onto
-                shift, converged = (0.0, 0.0), False
-            if converged and float(np.hypot(*shift)) <= max_shift:
-                return shift
-            rejected[k] = True
-            return (0.0, 0.0)
-
-        s01 = shift01 if shift01 is not None else plausible(0)
-        s12 = shift12 if shift12 is not None else plausible(1)
-        s02 = (s01[0] + s12[0], s01[1] + s12[1])
-        imgs[1] = warp_translation(imgs[1], s01)
-        imgs[2] = warp_translation(imgs[2], s02)
-    if diff0 is None:
-        raw0 = differential_image(imgs[0], imgs[1], gas_radiance, min_contrast)
-        smooth0 = sobolev_denoise(raw0, denoise_lambda)
-    else:
-        raw0, smooth0 = diff0
-    raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
-    smooth1 = sobolev_denoise(raw1, denoise_lambda)
-    return PreprocessedTriple(normalise_difference(smooth0, scale),
-                              normalise_difference(smooth1, scale), raw0, raw1, (s01, s12),
-                              sum(rejected), (rejected[0], rejected[1]), smooth1)
-
-
-def rescale_differences(triple: PreprocessedTriple, factor: float) -> PreprocessedTriple:
-    """``triple`` normalised with its scale divided by ``factor``.
-
-    The map to [0, 1] is affine (0.5 + D / 2s), so 0.5 + (diff - 0.5) factor, clipped,
-    equals normalising anew - exactly for factor >= 1 (a smaller scale), up to the values
-    the old scale had clipped otherwise. The raw differences stay as they are.
-    """
-    f = np.float32(factor)
-
-    def one(diff: np.ndarray) -> np.ndarray:
-        return np.clip((diff - np.float32(0.5)) * f + np.float32(0.5), 0.0, 1.0).astype(
-            np.float32, copy=False)
-
-    return dataclasses.replace(triple, diff0=one(triple.diff0), diff1=one(triple.diff1))
-
-
-def scale_samples(pl: PreprocessedTriple, pr: PreprocessedTriple) -> list[np.ndarray]:
-    """The four raw differential images of a triple without the border strip the
-    registration's warps filled with mirrored values (:attr:`PreprocessedTriple.border_px`,
-    the wider of the two cameras'): what a normalisation quantile may look at."""
-    b = max(pl.border_px, pr.border_px)
-    raws = (pl.raw0, pl.raw1, pr.raw0, pr.raw1)
-    return [r[b:-b, b:-b] for r in raws] if b else list(raws)
-
-
-def preprocess_stereo(
-    left: Sequence[np.ndarray],
-    right: Sequence[np.ndarray],
-    *,
-    scale: float,
-    curves: tuple[CharacteristicCurve | None, CharacteristicCurve | None] = (None, None),
-    maps: tuple[tuple[np.ndarray, np.ndarray] | None, tuple[np.ndarray, np.ndarray] | None] = (
-        None,
-        None,
-    ),
-    register: bool = True,
-    denoise_lambda: float = 2.0,
-    shift01: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
-    max_shift_px: float = 1.0,
-    gas_radiance: float | None = None,
-    min_contrast: float = 0.0,
-    shift12: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
-    diff0: tuple[tuple[np.ndarray, np.ndarray] | None,
-                 tuple[np.ndarray, np.ndarray] | None] = (None, None),
-) -> tuple[PreprocessedTriple, PreprocessedTriple]:
-    """:func:`preprocess_camera` for both cameras of a stereo triple with ONE shared scale.
-
-    The single ``scale`` argument is the point: E1 and E4 (Eq. 3a, 3d) compare left and
-    right intensities, so both cameras must be normalised by the same affine map.
-
-    Parameters
-    ----------
-    left, right : sequence of 3 ndarrays, shape (H, W)
-        Raw frames at t0, t1, t2 of the left and right camera.
-    scale : float
-        Shared normalisation scale in radiance units.
-    curves, maps, shift01, shift12, diff0 : pairs (left, right)
-        Per-camera characteristic curve, rectification maps, known t0 -> t1 and
-        t1 -> t2 shifts and known D(t0) (:func:`preprocess_camera`).
-    register, denoise_lambda, max_shift_px, gas_radiance, min_contrast
-        As in :func:`preprocess_camera`, the same for both cameras.
-
-    Returns
-    -------
-    (PreprocessedTriple, PreprocessedTriple)
-        Left and right.
-
-    Raises
-    ------
-    ValueError
-        As :func:`preprocess_camera`, or when the two cameras' results differ in shape.
-    """
-    out = tuple(
-        preprocess_camera(
-            frames,
-            scale=scale,
-            curve=curves[k],
-            maps=maps[k],
-            register=register,
-            denoise_lambda=denoise_lambda,
-            shift01=shift01[k],
-            shift12=shift12[k],
-            max_shift_px=max_shift_px,
-            gas_radiance=gas_radiance,
-            min_contrast=min_contrast,
-            diff0=diff0[k],
-        )
-        for k, frames in enumerate((left, right))
-    )
-    check_same_shape(out[0].diff0, out[1].diff0, "left differential image", "right")
-    return out[0], out[1]
-
+    second = second_difference(frames, curve=curve, maps=maps, register=register,
+                               denoise_lambda=denoise_lambda, shift01=shift01,
+                               max_shift_px=max_shift_px, gas_radiance=gas_radiance,
+                               min_contrast=min_contrast, shift12=shift12)
+    return complete_triple(second, scale=scale, denoise_lambda=denoise_lambda,
+                           gas_radiance=gas_radiance, min_contrast=min_contrast, diff0=diff0)
