@@ -96,14 +96,16 @@ def _drive(app: Appliance, sub: Subscriber, out: dict[str, Any], tmp: Path) -> N
     from playwright.sync_api import sync_playwright
 
     try:
-        _until(lambda: app.page_server is not None, 120, "the page server start", app)
-        url = app.page_server.url
-        out["url"] = url
-        t0 = time.monotonic()
-        phases = out.setdefault("phases", [])
         with sync_playwright() as p:
+            # The browser starts while the daemon does (seconds on a loaded machine): the
+            # desk page must be open before the event is, to see it say NO LEAK first.
             browser = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
             desk = browser.new_page(viewport={"width": 1280, "height": 860})
+            _until(lambda: app.page_server is not None, 120, "the page server start", app)
+            url = app.page_server.url
+            out["url"] = url
+            t0 = time.monotonic()
+            phases = out.setdefault("phases", [])
             desk.goto(url)
             desk.evaluate(OBSERVER_JS)
             _until(lambda: app.counters.results >= RESULTS_BEFORE_PHONE, START_DEADLINE_S,
