@@ -331,6 +331,28 @@ def test_anemometer_port_vanishes_and_returns(scene_cache: Path, tmp_path: Path)
     assert len(window) > 20 and not missing
 
 
+def shm_in_use() -> set[str]:
+    """Names under /dev/shm that a running process maps (shared memory, semaphores), by
+    inode: a semaphore is mapped under the temporary name it was created with."""
+    inodes = set()
+    for maps in Path("/proc").glob("[0-9]*/maps"):
+        try:
+            text = maps.read_text()
+        except OSError:  # the process ended, or is not ours to read
+            continue
+        for line in text.splitlines():
+            if "/dev/shm/" in line:
+                inodes.add(int(line.split()[4]))
+    names = set()
+    for name in os.listdir("/dev/shm"):
+        try:
+            if Path("/dev/shm", name).stat().st_ino in inodes:
+                names.add(name)
+        except OSError:
+            continue
+    return names
+
+
 def test_sigkill_then_recover_keeps_all_but_the_open_chunk(scene_cache: Path,
                                                            tmp_path: Path) -> None:
     """SIGKILL of the daemon (and its process group, as systemd would) mid-run, then
@@ -352,7 +374,15 @@ def test_sigkill_then_recover_keeps_all_but_the_open_chunk(scene_cache: Path,
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(30)
-        for name in set(os.listdir("/dev/shm")) - shm_before:  # the ring, left by SIGKILL
+        for _ in range(100):  # until the whole group is gone (its mappings with it)
+            try:
+                os.killpg(proc.pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.05)
+        # The ring and semaphores SIGKILL left; not what a daemon of another test process
+        # (pytest -n) created meanwhile, which its processes still map.
+        for name in set(os.listdir("/dev/shm")) - shm_before - shm_in_use():
             Path("/dev/shm", name).unlink(missing_ok=True)
     (cut,) = unfinished_files(rec)
     size = cut.stat().st_size
