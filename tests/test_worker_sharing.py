@@ -148,9 +148,9 @@ def _put_in_child(table) -> None:
 
 
 class _Lockstep:
-    """An image table two worker threads share, where each triple's first look-up waits
-    for the other worker's: the two start and compute their triples at the same time, as
-    workers running flat out do."""
+    """An image table two worker threads share, where each triple's D(t1) is offered at
+    the moment the other worker offers its own: the two compute their triples at the same
+    time, as workers running flat out do."""
 
     def __init__(self, barrier: object) -> None:
         import threading
@@ -162,10 +162,10 @@ class _Lockstep:
     def put(self, key: tuple, arrays: tuple[np.ndarray, ...]) -> None:
         with self.lock:
             self.table[key] = tuple(a.copy() for a in arrays)
+        if key[0] == 1.0:  # the right camera's, the last of a triple
+            self.barrier.wait()  # type: ignore[attr-defined]
 
     def get(self, key: tuple, count: int) -> tuple[np.ndarray, ...] | None:
-        if key[0] == 0.0:  # the left camera's look-up: once per triple
-            self.barrier.wait()  # type: ignore[attr-defined]
         with self.lock:
             hit = self.table.get(key)
         return None if hit is None or len(hit) != count else tuple(a.copy() for a in hit)
@@ -173,9 +173,9 @@ class _Lockstep:
 
 def test_workers_computing_side_by_side_find_each_others_differences() -> None:
     """Two workers whose triples run side by side (each triple's D(t0) is the D(t1) the
-    other computes at that moment) find it in every triple but the first: each shares its
-    D(t1) before it looks up D(t0). Results equal to the bit to workers that share
-    nothing."""
+    other computes at that moment) find it in every triple but the first: each looks
+    D(t0) up again after sharing its D(t1). Results equal to the bit to workers that
+    share nothing."""
     import threading
 
     seq = sequence(10)

@@ -303,12 +303,17 @@ class ChainState:
 
         ``seconds`` are this triple's registered frames and D(t1) per camera, ``settings``
         whatever else the differences depend on (the gas radiance, the contrast floor, the
-        denoising weight). Each camera's D(t1) is shared first, then D(t0) looked up, then
-        the D(t1) kept for this state's next triple: a worker whose D(t0) the other one
-        computes at the same time then mostly finds it, and so does the other worker.
-        A D(t1) is kept and shared only when it lies on t1's own grid (the triple's
-        t0 -> t1 shift is (0, 0)); otherwise the camera's older one is forgotten.
+        denoising weight). D(t0) is looked up, this triple's D(t1) shared, and a D(t0) not
+        found looked up once more: a worker whose D(t0) the other one is computing at the
+        same moment mostly finds it then, and the table's oldest entry, which a worker that
+        fell behind may need, is read before this triple's entries replace it. The D(t1)
+        are then kept for this state's next triple. A D(t1) is kept and shared only when
+        it lies on t1's own grid (the triple's t0 -> t1 shift is (0, 0)); otherwise the
+        camera's older one is forgotten.
         """
+        keys = [difference_key(cam, times[0], times[1], second.shifts[0], settings)
+                for cam, second in enumerate(seconds)]
+        found = [self._known_difference(cam, key) for cam, key in enumerate(keys)]
         mine = []
         for cam, second in enumerate(seconds):
             s01, s12 = second.shifts
@@ -319,23 +324,24 @@ class ChainState:
                 if self.images is not None:
                     self.images.put(*entry)
             mine.append(entry)
-        out: list[tuple[np.ndarray, np.ndarray] | None] = []
-        for cam, second in enumerate(seconds):
-            key = difference_key(cam, times[0], times[1], second.shifts[0], settings)
-            hit = self.differences.get(cam)
-            found = None
-            if hit is not None and hit[0] == key:
-                found = hit[1]
-            elif self.images is not None:
-                shared = self.images.get(key, 2)
-                found = None if shared is None else (shared[0], shared[1])
-            self.differences_reused += found is not None
-            out.append(found)
+        for cam, key in enumerate(keys):
+            if found[cam] is None:
+                found[cam] = self._known_difference(cam, key)
+            self.differences_reused += found[cam] is not None
             if mine[cam] is None:
                 self.differences.pop(cam, None)
             else:
                 self.differences[cam] = mine[cam]  # type: ignore[assignment]
-        return out[0], out[1]
+        return found[0], found[1]
+
+    def _known_difference(self, cam: int, key: ImageKey
+                          ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The difference under ``key``: this state's kept one, else the shared table's."""
+        hit = self.differences.get(cam)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        shared = None if self.images is None else self.images.get(key, 2)
+        return None if shared is None else (shared[0], shared[1])
 
     def corrected_frames(self, camera: int, raw: Sequence[np.ndarray], times: Times,
                          correct: Callable[[np.ndarray], np.ndarray]) -> list[np.ndarray]:
