@@ -3,7 +3,9 @@ simulated scene the whole-daemon tests share (rendered once per test session).""
 
 from __future__ import annotations
 
+import fcntl
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 # Ray (the reprocess tests) resolves 127.0.0.1 to the host's network address and listens
@@ -25,6 +27,33 @@ def data_dir() -> Path:
 def test_data_dir() -> Path:
     """``tests/data/`` (small golden files)."""
     return ROOT / "tests" / "data"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def module_lock(request: pytest.FixtureRequest,
+                tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """With ``pytest -n`` (test modules in several processes): a module marked ``alone``
+    runs while no other module does; the others run side by side.
+
+    The browser modules read how soon chromium (software rendering) shows what the daemon
+    did; beside another module's daemon that reads the load, not the page. A readers-
+    writer lock on files every process of the run sees (flock): each module holds the
+    main lock shared, an ``alone`` module exclusive; an ``alone`` module waiting holds the
+    turnstile, so modules starting meanwhile wait behind it instead of starving it.
+    """
+    root = tmp_path_factory.getbasetemp().parent  # shared by the processes of one run
+    alone = request.node.get_closest_marker("alone") is not None
+    with open(root / "modules.turnstile", "a") as gate, open(root / "modules.lock", "a") as main:
+        fcntl.flock(gate, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        fcntl.flock(main, fcntl.LOCK_EX if alone else fcntl.LOCK_SH)
+        if not alone:
+            fcntl.flock(gate, fcntl.LOCK_UN)
+        try:
+            yield
+        finally:
+            fcntl.flock(main, fcntl.LOCK_UN)
+            if alone:
+                fcntl.flock(gate, fcntl.LOCK_UN)
 
 
 @pytest.fixture(scope="session")

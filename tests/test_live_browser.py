@@ -23,12 +23,14 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.chromium import ARGS, CHROMIUM, screenshot
 from tests.conftest import SMALL_SCENE
 from tests.mosquitto import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.alone  # chromium's timing, not another module's daemon (conftest)
 # Frames per second the page draws, counted over 5 s of requestAnimationFrame callbacks.
 UI_FPS_JS = """new Promise(done => {
   let n = 0; const t0 = performance.now();

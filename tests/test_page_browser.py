@@ -52,7 +52,7 @@ CLIENTS, CLIENT_FRAMES = 20, 15
 #: Only a hang, never speed, reaches these (s).
 START_DEADLINE_S = 600.0
 
-pytestmark = pytest.mark.timeout(1500)
+pytestmark = [pytest.mark.timeout(1500), pytest.mark.alone]
 
 # Records every change of the leak-state text with the browser's clock.
 OBSERVER_JS = """() => {

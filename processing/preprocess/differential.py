@@ -175,10 +175,6 @@ class PreprocessedTriple:
         therefore not applied.
     rejected : (bool, bool)
         Which of the two shifts this call estimated and rejected (False for a known one).
-    denoised1 : ndarray, shape (H, W), float32, or None
-        ``raw1`` denoised, before normalisation (and before any depth gate): the next
-        triple's D(t0) together with ``raw1`` when t1 stayed where it was (``shifts[0]`` is
-        (0, 0)), see ``diff0`` of :func:`preprocess_camera`.
     """
 
     diff0: np.ndarray
@@ -188,7 +184,6 @@ class PreprocessedTriple:
     shifts: tuple[tuple[float, float], tuple[float, float]]
     rejected_shifts: int = 0
     rejected: tuple[bool, bool] = (False, False)
-    denoised1: np.ndarray | None = None
 
     @property
     def border_px(self) -> int:
@@ -212,8 +207,8 @@ class SecondDifference:
     :func:`preprocess_camera` knows before it needs D(t0).
 
     D(t0) is the previous triple's D(t1) (another worker's, when two share a stream), so
-    it is looked up only after this camera's own D(t1) exists: the longer the look-up
-    waits, the likelier the other worker has published it (:func:`complete_triple`).
+    it is looked up only after this triple's own D(t1) exist: the later, the likelier the
+    other worker has shared it (:func:`complete_triple`).
 
     Attributes
     ----------
@@ -295,7 +290,7 @@ def complete_triple(
     min_contrast: float = 0.0,
     diff0: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PreprocessedTriple:
-    """Step 4-6 of the module docstring for D(t0), then both differences normalised.
+    """Steps 4-6 of the module docstring for D(t0), then both differences normalised.
 
     Parameters
     ----------
@@ -318,7 +313,7 @@ def complete_triple(
     return PreprocessedTriple(normalise_difference(smooth0, scale),
                               normalise_difference(second.denoised1, scale), raw0,
                               second.raw1, second.shifts, sum(second.rejected),
-                              second.rejected, second.denoised1)
+                              second.rejected)
 
 
 def preprocess_camera(
@@ -369,10 +364,10 @@ def preprocess_camera(
         ``curve``); None keeps the plain difference.
     diff0 : (ndarray, ndarray) or None
         D(t0) raw and denoised, shape (H, W) float32, when already known: the previous
-        triple's ``raw1`` and ``denoised1`` of the same camera and settings, which are this
-        D(t0) exactly when that triple left its t1 (this t0) unmoved and moved its t2 (this
-        t1) by this ``shift01``. The caller vouches for that; it saves a difference and a
-        denoising.
+        triple's D(t1) raw and denoised (:class:`SecondDifference`) of the same camera and
+        settings, which are this D(t0) exactly when that triple left its t1 (this t0)
+        unmoved and moved its t2 (this t1) by this ``shift01``. The caller vouches for
+        that; it saves a difference and a denoising.
 
     Returns
     -------
