@@ -18,11 +18,10 @@ from processing.chain.scale import gas_radiance
 from processing.chain.state import ChainState, Times
 from processing.preprocess.differential import (
     PreprocessedTriple,
-    SecondDifference,
     apply_rectification,
     radiometric_correction,
 )
-from processing.preprocess.stereo_triple import KnownDiff0, preprocess_stereo
+from processing.preprocess.stereo_triple import preprocess_stereo
 from processing.stereo_geometry import Maps, StereoGeometry
 
 #: Both cameras' pre-processed triples, (left, right).
@@ -75,17 +74,13 @@ def preprocess_triple(left: Sequence[np.ndarray], right: Sequence[np.ndarray], t
     # looked up once this triple's D(t1) are computed and shared; the differences depend
     # on these settings too.
     settings = (lg, contrast_floor, params.denoise_lambda)
-
-    def known_diff0(seconds: tuple[SecondDifference, SecondDifference]) -> KnownDiff0:
-        return stream.exchange_differences(times, seconds, settings)
-
     pl, pr = preprocess_stereo(
         corrected[0], corrected[1], scale=scale, register=params.register,
         denoise_lambda=params.denoise_lambda,
         shift01=tuple(k[0][0] if k[0] else None for k in known),  # type: ignore[arg-type]
         shift12=tuple(k[1][0] if k[1] else None for k in known),  # type: ignore[arg-type]
         max_shift_px=params.max_jitter_px, gas_radiance=lg, min_contrast=contrast_floor,
-        diff0=known_diff0,
+        diff0=lambda seconds: stream.exchange_differences(times, seconds, settings),
     )
     pl, pr = stream.remember_shifts(times, known, (pl, pr))
     return pl, pr

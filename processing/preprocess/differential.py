@@ -303,7 +303,6 @@ def complete_triple(
     -------
     PreprocessedTriple
     """
-    scale = check_positive(scale, "scale")
     if diff0 is None:
         raw0 = differential_image(second.frames[0], second.frames[1], gas_radiance,
                                   min_contrast)

@@ -44,8 +44,7 @@ def preprocess_stereo(
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
     shift12: tuple[tuple[float, float] | None, tuple[float, float] | None] = (None, None),
-    diff0: KnownDiff0 | Callable[[tuple[SecondDifference, SecondDifference]], KnownDiff0] = (
-        None, None),
+    diff0: Callable[[tuple[SecondDifference, SecondDifference]], KnownDiff0] | None = None,
 ) -> tuple[PreprocessedTriple, PreprocessedTriple]:
     """``preprocess_camera`` (:mod:`processing.preprocess.differential`) for both cameras
     of a stereo triple with ONE shared scale.
@@ -62,9 +61,10 @@ def preprocess_stereo(
     curves, maps, shift01, shift12 : pairs (left, right)
         Per-camera characteristic curve, rectification maps, known t0 -> t1 and
         t1 -> t2 shifts (``preprocess_camera``).
-    diff0 : pair (left, right), or a callable returning one
-        Known D(t0) per camera (``diff0`` of ``preprocess_camera``), or a look-up
-        called with both cameras' :class:`SecondDifference` once their D(t1) exist. Two
+    diff0 : callable or None
+        A look-up of the known D(t0) per camera (``diff0`` of ``preprocess_camera``, or
+        None), called with both cameras' :class:`SecondDifference` once their D(t1)
+        exist; None: compute every D(t0). Two
         workers of one stream start their triples at about the same time when they run
         flat out, and each one's D(t0) is the other's D(t1): asked for at the start, it is
         rarely there yet; asked for after both D(t1), mostly (the look-up can publish this
@@ -92,7 +92,7 @@ def preprocess_stereo(
     ]
     pair = (seconds[0], seconds[1])
     check_same_shape(pair[0].raw1, pair[1].raw1, "left differential image", "right")
-    known = diff0(pair) if callable(diff0) else diff0
+    known: KnownDiff0 = (None, None) if diff0 is None else diff0(pair)
     out = tuple(
         complete_triple(second, scale=scale, denoise_lambda=denoise_lambda,
                         gas_radiance=gas_radiance, min_contrast=min_contrast, diff0=known[k])
