@@ -100,3 +100,31 @@ def test_lens_condition_rectifies_frames_and_moves_the_truth_with_them(tmp_path:
     np.testing.assert_array_equal(moved.gt_velocity[ys, xs], frame.gt_velocity[src_y, src_x])
     # barrel distortion: the maps pull the corners outwards, so the truth really moved
     assert abs(mx[0, 0] - 0.0) > 1.0
+
+
+def test_a_configuration_file_sets_the_workers_the_matrix_is_run_with(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--config FILE`` runs the triples as the file's workers take them (the shipped
+    configuration: two), ``--workers`` says otherwise; more than two is refused before any
+    scene is simulated."""
+    matrix = tmp_path / "m.yaml"
+    matrix.write_text("name: m\nn_frames: 5\nvoxel_m: 0.12\nconditions: [{name: ideal}]\n"
+                      "scenes: [{seed: 7, wind_m_s: [1.0, 0.0, 1.0]}]\n")
+    cfg = tmp_path / "two.yaml"
+    cfg.write_text("processing:\n  workers: 2\n")
+    runs = {}
+    for extra in ([], ["--workers", "1"]):
+        out = tmp_path / f"r{len(extra)}.json"
+        assert cli.main(["eval", "robustness", "--matrix", str(matrix), "--config", str(cfg),
+                         "--cache-dir", str(tmp_path / "cache"), "--json", str(out),
+                         *extra]) == cli.EXIT_OK
+        runs[len(extra)] = json.loads(out.read_text())["ideal"]
+    assert runs[0]["workers"] == 2 and runs[2]["workers"] == 1
+    # three triples: the third is warm from the first (two workers) or the second (one)
+    assert runs[0]["pooled"]["aee_3d_mm_s"] != runs[2]["pooled"]["aee_3d_mm_s"]
+    text = capsys.readouterr().out
+    assert "two workers (every other triple each" in text and "one worker" in text
+    cfg.write_text("processing:\n  workers: 3\n")
+    assert cli.main(["eval", "robustness", "--matrix", str(matrix), "--config", str(cfg),
+                     "--cache-dir", str(tmp_path / "cache")]) == cli.EXIT_USAGE
+    assert "processing.workers is 3" in capsys.readouterr().err

@@ -234,3 +234,79 @@ def test_appliance_chain_end_to_end_and_bad_config_exit_2(tiny_data: Path, tmp_p
     assert cli.main(["eval", "sceneflow", "--data", str(tiny_data), "--chain", "appliance",
                      "--config", str(bad)]) == cli.EXIT_USAGE
     assert "registr" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def six_frames(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny sequence with 6 frames: 4 triples, so each of two workers warm-starts once."""
+    root = tmp_path_factory.mktemp("synthetic6")
+    cfg = preset_table2_1()
+    fluid = replace(cfg.fluid, shape=(24, 24, 24), voxel_m=cfg.fluid.voxel_m * 100 / 24)
+    cfg = replace(cfg, fluid=fluid, n_frames=6, spinup_steps=10,
+                  camera=StereoCamera(width=128, height=96, s_px=312.0))
+    write_sequence(root / "six", cfg.meta(), generate_sequence(cfg))
+    return root / "six"
+
+
+def test_two_workers_take_every_other_triple_warm_from_two_frames_back(six_frames: Path
+                                                                       ) -> None:
+    """``workers=2`` is the daemon's two workers: triple i on state i % 2 at stride 2 (the
+    third triple warm from the first), not one state taking every triple."""
+    from appliance.evaluation.sceneflow_setup import Overrides, sequence_setup
+    from processing.chain import ChainState, compute_scene_flow
+    from processing.synthetic import read_frame, read_sequence_meta
+    from processing.synthetic.reference import triplet_reference
+
+    meta = read_sequence_meta(six_frames)
+    setup = sequence_setup(meta, six_frames, chain="appliance")
+    assert setup.workers == 2  # the built-in configuration's processing.workers
+    assert setup.sources["workers"] == "built-in configuration"
+    assert sequence_setup(meta, six_frames).workers == 1  # the paper's conditions
+    one_worker = sequence_setup(meta, six_frames, chain="appliance",
+                                overrides=Overrides(workers=1))
+    assert one_worker.workers == 1 and one_worker.sources["workers"] == "command line"
+    frames = [read_frame(six_frames, i, meta) for i in range(6)]
+    g, p = setup.geometry, setup.params
+    two, _ = eval_sceneflow.evaluate_frames(frames, g, p, methods=("proposed",), workers=2)
+    one, _ = eval_sceneflow.evaluate_frames(frames, g, p, methods=("proposed",), workers=1)
+    states = [ChainState(stride=2), ChainState(stride=2)]
+    expected = []
+    for i in range(4):
+        f0, f1, f2 = frames[i:i + 3]
+        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
+                                 [f0.t_s, f1.t_s, f2.t_s], g, p, states[i % 2])
+        ref, ref_mask = triplet_reference(f0, f1)
+        expected.append(eval_sceneflow.frame_metrics(res.velocity, res.valid, res.gas_mask,
+                                                     res.u_sf, res.u_sf_valid, ref, ref_mask))
+    assert [s.warm_starts for s in states] == [1, 1]
+    got = two["proposed"]["frames"]
+    for key in ("rmve", "aemv", "aee_3d_mm_s"):
+        assert [f[key] for f in got] == [e[key] for e in expected]
+    # one state: triples 1-3 warm from the triple before, so the two differ from triple 1 on
+    assert [f["aee_3d_mm_s"] for f in one["proposed"]["frames"]][1:] != \
+        [f["aee_3d_mm_s"] for f in got][1:]
+    with pytest.raises(ValueError, match="1 or 2 worker"):
+        eval_sceneflow.evaluate_frames(frames, g, p, methods=("proposed",), workers=3)
+
+
+def test_workers_come_from_the_configuration_or_the_command_line(
+        six_frames: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "a.json"
+    assert cli.main(["eval", "sceneflow", "--data", str(six_frames), "--frames", "1",
+                     "--chain", "appliance", "--json", str(out)]) == cli.EXIT_OK
+    assert json.loads(out.read_text())["six"]["setup"]["workers"] == {
+        "value": "2 (every other triple each, warm from two frames back)",
+        "source": "built-in configuration"}
+    assert "workers = 2 (every other triple each" in capsys.readouterr().out
+    assert cli.main(["eval", "sceneflow", "--data", str(six_frames), "--frames", "1",
+                     "--chain", "appliance", "--workers", "1"]) == cli.EXIT_OK
+    assert "workers = 1 (every triple warm from the one before) (command line)" in \
+        capsys.readouterr().out
+    many = tmp_path / "many.yaml"
+    many.write_text("processing:\n  workers: 4\n")
+    assert cli.main(["eval", "sceneflow", "--data", str(six_frames), "--chain", "appliance",
+                     "--config", str(many)]) == cli.EXIT_USAGE
+    assert "processing.workers is 4" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # argparse: 1 or 2 only
+        cli.main(["eval", "sceneflow", "--data", str(six_frames), "--workers", "3"])
+    assert exc.value.code == cli.EXIT_USAGE

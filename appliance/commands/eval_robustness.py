@@ -46,6 +46,11 @@ def register(root: argparse._SubParsersAction) -> None:
                         "file's processing.parameters over the scene's gas depth band "
                         "(d0, SGM range). Without it: the band and the field solver options "
                         "(disparity_options n_warps 3, n_inner 4, n_inner_finest 6, n_sor 15)")
+    p.add_argument("--workers", type=int, choices=(1, 2), default=None,
+                   help="take the triples as this many of the daemon's workers do: 1 (one "
+                        "chain state, every triple) or 2 (two states alternating, each "
+                        "warm-started two frames back). Default: the --config file's "
+                        "processing.workers, else 1")
     p.add_argument("--condition", action="append", metavar="NAME",
                    help="evaluate only this condition of the matrix (repeatable)")
     p.add_argument("--json", type=Path, metavar="OUT", help="write the results as JSON")
@@ -75,8 +80,16 @@ def run(args: argparse.Namespace) -> int:
     else:
         matrix = rb.MATRICES[args.matrix]
     hook = None
+    workers = 1 if args.workers is None else args.workers
     if args.config is not None:
         processing = load_processing(args.config)
+        if args.workers is None:
+            workers = processing.workers
+            if workers > 2:
+                raise ValueError(
+                    f"{args.config}: processing.workers is {workers}; an evaluation takes "
+                    "the triples as 1 or 2 workers do (more each take the newest triple, "
+                    "which depends on timing): give --workers 1 or 2")
 
         def hook(params: Any) -> Any:
             # the daemon's parameters: the scene's band under the file's parameters
@@ -88,9 +101,11 @@ def run(args: argparse.Namespace) -> int:
         print(msg, file=sys.stderr, flush=True)
 
     results = rb.run_matrix(matrix, cache, conditions=args.condition, params_hook=hook,
-                           log=log)
+                           log=log, workers=workers)
     chain = (f"chain as `ogiflow run --config {args.config}`" if args.config is not None
              else "chain: the gas depth band and the field solver options")
+    chain += (", one worker (every triple warm from the one before)" if workers == 1 else
+              ", two workers (every other triple each, warm from two frames back)")
     print(f"Scene-flow robustness, matrix {matrix.name!r}: {len(matrix.scenes)} scene(s) x "
           f"{matrix.n_frames} frames; pooled over every triple; {chain}")
     print(rb.format_table(results))

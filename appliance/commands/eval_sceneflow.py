@@ -88,6 +88,11 @@ def register(root: argparse._SubParsersAction) -> None:
                      help="width N of the SGM search range [d0, d0 + N) in px, multiple of "
                           "16, for the chain's initialisation and the baselines (default: "
                           "from the gas depth band, at least 64)")
+    p.add_argument("--workers", type=int, choices=(1, 2), default=None,
+                   help="take the triples as this many of the daemon's workers do: 1 (every "
+                        "triple warm from the one before) or 2 (every other triple each, "
+                        "warm from two frames back). Default: with --chain appliance the "
+                        "configuration's processing.workers, else 1")
     p.add_argument("--frames", type=int, metavar="N",
                    help="evaluate only the first N triples of each sequence")
     p.set_defaults(func=run)
@@ -110,7 +115,7 @@ def _overrides(args: argparse.Namespace) -> Any:
         principal_point=None if args.principal_point is None else tuple(args.principal_point),
         depth_band_m=None if args.depth_band is None else tuple(args.depth_band),
         frame_interval_s=args.frame_interval, d0=args.d0, sgm_range=args.sgm_range,
-        disparity_init=args.disparity_init)
+        disparity_init=args.disparity_init, workers=args.workers)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -266,13 +266,15 @@ def scene_frames(matrix: Matrix, scene: Scene, cond: Condition, cache_dir: Path 
 
 def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, *,
                        params_hook: ParamsHook | None = None,
-                       log: Log | None = None) -> Metrics:
-    """Every scene of ``matrix`` under ``cond``: per-scene summaries and the pooled one.
+                       log: Log | None = None, workers: int = 1) -> Metrics:
+    """Every scene of ``matrix`` under ``cond``: per-scene summaries and the pooled one,
+    the triples taken as ``workers`` (1 or 2) daemon workers take them
+    (:func:`appliance.evaluation.sceneflow.worker_states`).
 
     Returns
     -------
     {"condition": asdict(cond), "scenes": {name: summary}, "pooled": aggregate over every
-    triple of every scene, "flags": triples per chain flag, "seconds"}
+    triple of every scene, "flags": triples per chain flag, "seconds", "workers"}
     """
     start = time.perf_counter()
     scenes: dict[str, Metrics] = {}
@@ -282,8 +284,8 @@ def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, 
         frames, geometry, params = scene_frames(matrix, scene, cond, cache_dir, log)
         if params_hook is not None:
             params = params_hook(params)
-        summary, _ = evaluate_frames(frames, geometry, params,
-                                     methods=("proposed",), name=scene.name)
+        summary, _ = evaluate_frames(frames, geometry, params, methods=("proposed",),
+                                     name=scene.name, workers=workers)
         scenes[scene.name] = summary["proposed"]
         pooled.extend(summary["proposed"]["frames"])
         for k, v in summary["flags"].items():
@@ -293,13 +295,13 @@ def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, 
             log(f"  {cond.name:<20} {scene.name:<22} RMVE {_f(p['rmve'])} % "
                 f"AEMV {_f(p['aemv'])} deg  false gas {_f(p['false_gas'], 2)}")
     return {"condition": asdict(cond), "scenes": scenes, "pooled": aggregate(pooled),
-            "flags": flags, "seconds": time.perf_counter() - start}
+            "flags": flags, "seconds": time.perf_counter() - start, "workers": workers}
 
 
 def run_matrix(matrix: Matrix, cache_dir: Path | None, *,
                conditions: Sequence[str] | None = None,
                params_hook: ParamsHook | None = None,
-               log: Log | None = None) -> dict[str, Metrics]:
+               log: Log | None = None, workers: int = 1) -> dict[str, Metrics]:
     """:func:`evaluate_condition` for every (selected) condition, in matrix order."""
     chosen = matrix.conditions
     if conditions:
@@ -313,8 +315,8 @@ def run_matrix(matrix: Matrix, cache_dir: Path | None, *,
     for cond in chosen:
         if log is not None:
             log(f"condition {cond.name} ...")
-        out[cond.name] = evaluate_condition(matrix, cond, cache_dir,
-                                            params_hook=params_hook, log=log)
+        out[cond.name] = evaluate_condition(matrix, cond, cache_dir, params_hook=params_hook,
+                                            log=log, workers=workers)
     return out
 
 

@@ -16,6 +16,10 @@ of their own, and one region keeps the comparison about velocity) against the tr
 reference V* (:func:`processing.synthetic.reference.triplet_reference`) with the metrics of
 :mod:`processing.metrics.sceneflow` (Sec. 5.1, Eq. 10). RMVE and AEMV are given as mean and
 standard deviation over the frames, the other metrics as means.
+
+``workers=2`` hands the triples out as the daemon's two workers take them: alternately to
+two chain states at stride 2 that share their registration shifts, so each warm-starts
+from its own triple two frames back (:mod:`appliance.runtime.workers`).
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ from processing.chain import (
     StereoGeometry,
     compute_scene_flow,
 )
+from processing.chain.shifts import LocalShiftMemo
+from processing.chain.state import STRIDES
 from processing.metrics import sceneflow as sm
 from processing.metrics.baselines import sgm_brox, sgm_farneback
 from processing.synthetic import SyntheticFrame
@@ -226,11 +232,31 @@ def baseline_fields(kind: str, res: SceneFlowResult, geometry: StereoGeometry,
     return vel, valid, u_sf, u_ok
 
 
+def worker_states(workers: int) -> list[ChainState]:
+    """The chain states of the daemon's ``workers`` (1 or 2) worker processes: triple i goes
+    to state i % workers, each at stride ``workers``, one shift memo between them.
+
+    Raises
+    ------
+    ValueError
+        Another number: more than two workers each take the newest triple, which depends on
+        the machine's timing, not on the sequence.
+    """
+    if workers not in STRIDES:
+        raise ValueError(f"an evaluation runs the triples as {' or '.join(map(str, STRIDES))} "
+                         f"worker(s) take them, got {workers} (more workers each take the "
+                         "newest triple, which depends on timing)")
+    memo = LocalShiftMemo()
+    return [ChainState(stride=workers, shifts=memo) for _ in range(workers)]
+
+
 def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
                     params: ChainParameters, *, methods: Sequence[str] = METHODS,
                     max_triples: int | None = None, name: str = "sequence",
-                    log: Log | None = None) -> tuple[Metrics, dict[str, Any]]:
-    """Run ``methods`` on every consecutive triple of ``frames`` (one warm-started chain).
+                    log: Log | None = None, workers: int = 1
+                    ) -> tuple[Metrics, dict[str, Any]]:
+    """Run ``methods`` on every consecutive triple of ``frames`` (warm-started chains: one,
+    or the daemon's two workers' taking every other triple, :func:`worker_states`).
 
     Returns
     -------
@@ -249,13 +275,14 @@ def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
     triples = n - 2 if max_triples is None else min(n - 2, max_triples)
     per_method: dict[str, list[Metrics]] = {m: [] for m in methods}
     flags: dict[str, int] = {}
-    state = ChainState()
+    states = worker_states(workers)
     fig: dict[str, Any] = {}
     start = time.perf_counter()
     for i in range(triples):
         f0, f1, f2 = frames[i:i + 3]
         res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params,
+                                 states[i % workers])
         for flag in res.summary.flags:
             flags[flag] = flags.get(flag, 0) + 1
         ref, ref_mask = triplet_reference(f0, f1)

@@ -58,6 +58,7 @@ class Overrides:
     d0: float | None = None
     sgm_range: int | None = None
     disparity_init: str | None = None
+    workers: int | None = None
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,7 @@ class SequenceSetup:
     params: ChainParameters
     frame_interval_s: float
     chain: str
+    workers: int = 1
     values: dict[str, str] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
@@ -221,8 +223,31 @@ def sequence_setup(meta: dict[str, Any], directory: Path, *, chain: str = "paper
         f"configuration {config}" if config is not None else "built-in configuration")
     sources["registration"] = sources["depth gate"] = (
         "paper's conditions" if chain == "paper" else cfg_src)
+    workers = _workers(chain, config, ov, values, sources)
     return SequenceSetup(geometry=geometry, params=params, frame_interval_s=dt, chain=chain,
-                         values=values, sources=sources, notes=_notes(meta, chain))
+                         workers=workers, values=values, sources=sources,
+                         notes=_notes(meta, chain))
+
+
+def _workers(chain: str, config: Path | None, ov: Overrides, values: dict[str, str],
+             sources: dict[str, str]) -> int:
+    """How many of the daemon's workers take the triples: the command line's, else the
+    appliance chain's configuration's (``processing.workers``), else one."""
+    if ov.workers is not None:
+        n, src = ov.workers, "command line"
+    elif chain == "appliance":
+        n = load_processing(config).workers
+        src = f"configuration {config}" if config is not None else "built-in configuration"
+        if n > 2:
+            raise ValueError(f"{src}: processing.workers is {n}; an evaluation takes the "
+                             "triples as 1 or 2 workers do (more each take the newest "
+                             "triple, which depends on timing): give --workers 1 or 2")
+    else:
+        n, src = 1, "paper's conditions"
+    values["workers"] = ("1 (every triple warm from the one before)" if n == 1 else
+                         f"{n} (every other triple each, warm from two frames back)")
+    sources["workers"] = src
+    return n
 
 
 def load_processing(config: Path | None) -> ProcessingConfig:
@@ -308,7 +333,7 @@ def evaluate_sequence(directory: Path, setup: SequenceSetup, meta: dict[str, Any
             f = replace(f, t_s=i * setup.frame_interval_s)
         frames.append(f)
     return evaluate_frames(frames, setup.geometry, setup.params, max_triples=max_triples,
-                           name=Path(directory).name, log=log)
+                           name=Path(directory).name, log=log, workers=setup.workers)
 
 
 def _notes(meta: dict[str, Any], chain: str) -> tuple[str, ...]:
