@@ -182,6 +182,21 @@ def refine(levels: tuple[Level, ...], start: tuple[float, float], *, robust_scal
     return shift, converged, cost
 
 
+def shift_cost(level: Level, shift: tuple[float, float], robust_scale: float) -> float:
+    """The refinement's cost (:func:`refine`) of ``level`` at ``shift`` (its px): the Cauchy
+    scale of the residual moving(x + shift) - reference(x), i.e. how well the static
+    background fits there."""
+    h, w = level.ref.shape
+    b = level.border
+    resid = np.empty((h, w), np.float32)
+    rows = np.empty((h, w), np.float32)
+    buf = np.empty(w + 2 * (min(h, w) // 2) + 8, np.float32)
+    translate_into(level.mov, float(shift[0]), float(shift[1]), resid, rows, buf)
+    resid -= level.ref
+    sample = np.empty(((h - 2 * b) // 3 + 1) * ((w - 2 * b) // 3 + 1), np.float32)
+    return float(_cauchy_scale(resid, b, float(robust_scale), sample))
+
+
 def _gauss_newton(level: Level, start: tuple[float, float], *, robust_scale: float,
                   max_iter: int, tol: float, give_up: float
                   ) -> tuple[tuple[float, float], bool, float]:
