@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import cv2
@@ -139,7 +140,7 @@ def test_a_shift_following_the_gas_over_a_featureless_wall_is_not_applied() -> N
     assert cfg.background.kind == "uniform"
     frames = [f.left.astype(np.float32) for f in generate_sequence(cfg)]
     followed = 0
-    for a, b in zip(frames, frames[1:]):
+    for a, b in itertools.pairwise(frames):
         shift, converged = registration.estimate_shift_checked(a, b, max_iter=20,
                                                                max_shift=1.5)
         followed += float(np.hypot(*shift)) > registration.CHECKED_ABOVE_PX
