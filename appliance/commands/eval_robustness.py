@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     # Imported when the command runs: the CLI imports every command module for its parser.
     from appliance.evaluation import robustness as rb
     from appliance.evaluation.matrix_file import is_matrix_file, load_matrix
+    from appliance.evaluation.sceneflow import configured_workers
     from appliance.evaluation.sceneflow_setup import load_processing
     from appliance.runtime.simsite import cache_root
 
@@ -84,12 +85,7 @@ def run(args: argparse.Namespace) -> int:
     if args.config is not None:
         processing = load_processing(args.config)
         if args.workers is None:
-            workers = processing.workers
-            if workers > 2:
-                raise ValueError(
-                    f"{args.config}: processing.workers is {workers}; an evaluation takes "
-                    "the triples as 1 or 2 workers do (more each take the newest triple, "
-                    "which depends on timing): give --workers 1 or 2")
+            workers = configured_workers(processing.workers, str(args.config))
 
         def hook(params: Any) -> Any:
             # the daemon's parameters: the scene's band under the file's parameters

@@ -250,6 +250,17 @@ def worker_states(workers: int) -> list[ChainState]:
     return [ChainState(stride=workers, shifts=memo) for _ in range(workers)]
 
 
+def configured_workers(workers: int, source: str) -> int:
+    """A configuration's ``processing.workers`` (from ``source``) as an evaluation takes the
+    triples (:func:`worker_states`): ValueError saying what to give instead of more than
+    two."""
+    if workers not in STRIDES:
+        raise ValueError(f"{source}: processing.workers is {workers}; an evaluation takes the "
+                         "triples as 1 or 2 workers do (more each take the newest triple, "
+                         "which depends on timing): give --workers 1 or 2")
+    return workers
+
+
 def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
                     params: ChainParameters, *, methods: Sequence[str] = METHODS,
                     max_triples: int | None = None, name: str = "sequence",

@@ -32,7 +32,13 @@ import cv2
 import numpy as np
 
 from appliance.config import ProcessingConfig
-from appliance.evaluation.sceneflow import Log, Metrics, evaluate_frames, sequence_geometry
+from appliance.evaluation.sceneflow import (
+    Log,
+    Metrics,
+    configured_workers,
+    evaluate_frames,
+    sequence_geometry,
+)
 from appliance.evaluation.sceneflow import chain_parameters as paper_parameters
 from processing.chain import ChainParameters, StereoGeometry
 from processing.synthetic import SyntheticFrame, read_frame
@@ -236,12 +242,8 @@ def _workers(chain: str, config: Path | None, ov: Overrides, values: dict[str, s
     if ov.workers is not None:
         n, src = ov.workers, "command line"
     elif chain == "appliance":
-        n = load_processing(config).workers
         src = f"configuration {config}" if config is not None else "built-in configuration"
-        if n > 2:
-            raise ValueError(f"{src}: processing.workers is {n}; an evaluation takes the "
-                             "triples as 1 or 2 workers do (more each take the newest "
-                             "triple, which depends on timing): give --workers 1 or 2")
+        n = configured_workers(load_processing(config).workers, src)
     else:
         n, src = 1, "paper's conditions"
     values["workers"] = ("1 (every triple warm from the one before)" if n == 1 else
