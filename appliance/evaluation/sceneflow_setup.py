@@ -210,12 +210,16 @@ def sequence_setup(meta: dict[str, Any], directory: Path, *, chain: str = "paper
     n_src = ("command line" if ov.sgm_range is not None else
              band_src if band is not None else "chain default")
     init = ov.disparity_init or "sgm"
-    if chain == "paper":
+    # The appliance chain's configuration, read once: its parameters and its workers.
+    processing = None if chain == "paper" else load_processing(config)
+    cfg_src = "chain default" if chain == "paper" else (
+        f"configuration {config}" if config is not None else "built-in configuration")
+    if processing is None:
         params = paper_parameters(init, d0, n)
         init_src = "command line" if ov.disparity_init else "chain default"
     else:
-        params, d0_src, n_src, init_src = _appliance_parameters(config, d0, n, ov, d0_src,
-                                                                n_src)
+        params, d0_src, n_src, init_src = _appliance_parameters(processing, cfg_src, d0, n,
+                                                                ov, d0_src, n_src)
     values["d0"] = f"{params.d0:g} px"
     sources["d0"] = d0_src
     values["SGM range"] = (f"[{math.floor(params.d0)}, "
@@ -225,25 +229,22 @@ def sequence_setup(meta: dict[str, Any], directory: Path, *, chain: str = "paper
     sources["disparity init"] = init_src
     values["registration"] = "on" if params.register else "off"
     values["depth gate"] = "on" if params.depth_gate else "off"
-    cfg_src = "chain default" if chain == "paper" else (
-        f"configuration {config}" if config is not None else "built-in configuration")
     sources["registration"] = sources["depth gate"] = (
         "paper's conditions" if chain == "paper" else cfg_src)
-    workers = _workers(chain, config, ov, values, sources)
+    workers = _workers(processing, cfg_src, ov, values, sources)
     return SequenceSetup(geometry=geometry, params=params, frame_interval_s=dt, chain=chain,
                          workers=workers, values=values, sources=sources,
                          notes=_notes(meta, chain))
 
 
-def _workers(chain: str, config: Path | None, ov: Overrides, values: dict[str, str],
-             sources: dict[str, str]) -> int:
+def _workers(processing: ProcessingConfig | None, where: str, ov: Overrides,
+             values: dict[str, str], sources: dict[str, str]) -> int:
     """How many of the daemon's workers take the triples: the command line's, else the
-    appliance chain's configuration's (``processing.workers``), else one."""
+    appliance chain's configuration's (``processing``, read from ``where``), else one."""
     if ov.workers is not None:
         n, src = ov.workers, "command line"
-    elif chain == "appliance":
-        src = f"configuration {config}" if config is not None else "built-in configuration"
-        n = configured_workers(load_processing(config).workers, src)
+    elif processing is not None:
+        n, src = configured_workers(processing.workers, where), where
     else:
         n, src = 1, "paper's conditions"
     values["workers"] = ("1 (every triple warm from the one before)" if n == 1 else
@@ -270,14 +271,13 @@ def load_processing(config: Path | None) -> ProcessingConfig:
     return validate_config(section, str(config)).processing
 
 
-def _appliance_parameters(config: Path | None, d0: float, n: int, ov: Overrides,
-                          d0_src: str, n_src: str) -> tuple[ChainParameters, str, str, str]:
-    """The daemon's parameters: the band's d0 and N under the configuration's parameters,
-    command-line values over both. Returns the parameters and the sources of d0, N and
-    the disparity initialisation."""
-    processing = load_processing(config)
+def _appliance_parameters(processing: ProcessingConfig, where: str, d0: float, n: int,
+                          ov: Overrides, d0_src: str, n_src: str
+                          ) -> tuple[ChainParameters, str, str, str]:
+    """The daemon's parameters: the band's d0 and N under the configuration's parameters
+    (``processing``, read from ``where``), command-line values over both. Returns the
+    parameters and the sources of d0, N and the disparity initialisation."""
     given = processing.parameters
-    where = f"configuration {config}" if config is not None else "built-in configuration"
     params = processing.chain_parameters({"d0": d0, "sgm_num_disparities": n})
     flags: dict[str, Any] = {}
     if ov.d0 is not None:

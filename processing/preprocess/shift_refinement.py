@@ -73,6 +73,32 @@ def _cauchy_scale(resid: np.ndarray, border: int, robust_scale: float,
     return robust_scale * 1.4826 * float(np.median(sample[:n])) + 1e-12
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _scratch(h: int, w: int, border: int
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Buffers of :func:`_residual_scale` on an (h, w) level: the residual, the horizontally
+    interpolated rows and the row buffer of ``translate_into``, and the median's sample."""
+    return (np.empty((h, w), np.float32), np.empty((h, w), np.float32),
+            np.empty(w + 2 * (min(h, w) // 2) + 8, np.float32),
+            np.empty(((h - 2 * border) // 3 + 1) * ((w - 2 * border) // 3 + 1), np.float32))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _residual_scale(ref: np.ndarray, mov: np.ndarray, dx: float, dy: float, border: int,
+                    robust_scale: float, resid: np.ndarray, rows: np.ndarray,
+                    buf: np.ndarray, sample: np.ndarray) -> float:
+    """``resid`` = mov(x + d) - ref(x) and its Cauchy scale (:func:`_cauchy_scale`): the
+    refinement's cost at d; the other arrays are :func:`_scratch`'s."""
+    translate_into(mov, dx, dy, resid, rows, buf)
+    h, w = ref.shape
+    for i in range(h):
+        ri = resid[i]
+        fi = ref[i]
+        for j in range(w):
+            ri[j] -= fi[j]
+    return _cauchy_scale(resid, border, robust_scale, sample)
+
+
 @numba.njit(cache=True, fastmath=True, error_model="numpy")
 def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.ndarray,
                        border: int, dx: float, dy: float, robust_scale: float, max_iter: int,
@@ -80,21 +106,12 @@ def _gauss_newton_loop(ref: np.ndarray, mov: np.ndarray, gx: np.ndarray, gy: np.
     """The iterations of :func:`_gauss_newton` in compiled code: (dx, dy, converged, cost);
     not converged as soon as the shift leaves the disc of radius ``give_up`` px."""
     h, w = ref.shape
-    resid = np.empty((h, w), np.float32)
-    rows = np.empty((h, w), np.float32)
-    buf = np.empty(w + 2 * (min(h, w) // 2) + 8, np.float32)
-    sample = np.empty(((h - 2 * border) // 3 + 1) * ((w - 2 * border) // 3 + 1), np.float32)
+    resid, rows, buf, sample = _scratch(h, w, border)
     c = np.inf
     for _ in range(max_iter):
         if max(abs(dx), abs(dy)) + 3 > min(h, w) // 2:
             return dx, dy, False, np.inf  # diverged far beyond any jitter
-        translate_into(mov, dx, dy, resid, rows, buf)
-        for i in range(h):
-            ri = resid[i]
-            fi = ref[i]
-            for j in range(w):
-                ri[j] -= fi[j]
-        c = _cauchy_scale(resid, border, robust_scale, sample)
+        c = _residual_scale(ref, mov, dx, dy, border, robust_scale, resid, rows, buf, sample)
         a11, a12, a22, b1, b2 = _gauss_newton_sums(resid, gx, gy, border, c)
         det = a11 * a22 - a12 * a12
         if det <= 0.0:
@@ -187,14 +204,9 @@ def shift_cost(level: Level, shift: tuple[float, float], robust_scale: float) ->
     scale of the residual moving(x + shift) - reference(x), i.e. how well the static
     background fits there."""
     h, w = level.ref.shape
-    b = level.border
-    resid = np.empty((h, w), np.float32)
-    rows = np.empty((h, w), np.float32)
-    buf = np.empty(w + 2 * (min(h, w) // 2) + 8, np.float32)
-    translate_into(level.mov, float(shift[0]), float(shift[1]), resid, rows, buf)
-    resid -= level.ref
-    sample = np.empty(((h - 2 * b) // 3 + 1) * ((w - 2 * b) // 3 + 1), np.float32)
-    return float(_cauchy_scale(resid, b, float(robust_scale), sample))
+    return float(_residual_scale(level.ref, level.mov, float(shift[0]), float(shift[1]),
+                                 level.border, float(robust_scale),
+                                 *_scratch(h, w, level.border)))
 
 
 def _gauss_newton(level: Level, start: tuple[float, float], *, robust_scale: float,
