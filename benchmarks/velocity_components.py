@@ -10,8 +10,11 @@ the measured and the reference mean of V_X, V_Y, V_Z (Eq. 4, m/s, left camera fr
 mean disparity d and disparity change d' there (px), the normalisation scale the chain used
 and its flags. At the end: the means over the triples, each component's share of the
 reference (measured / reference; none where the reference has next to nothing of that
-component) and the scene's RMVE / AEMV as ``ogiflow eval robustness`` computes them (Eq. 10:
-the segmented region against the reference's). ``--config FILE`` runs the chain as
+component), the scene's RMVE / AEMV as ``ogiflow eval robustness`` computes them (Eq. 10:
+the segmented region against the reference's), and the magnitude of Eq. 10's mean as three
+factors (:func:`magnitude_factors`): what the segmented pixels that are not the reference's
+gas do to it, the velocity on the common pixels, and what the reference's gas left out of
+the segmentation would have added. ``--config FILE`` runs the chain as
 ``ogiflow eval robustness --config FILE`` does (the file's ``processing.parameters`` over the
 scene's gas depth band), e.g. with ``disparity_options: {constant_mode: false}`` or a fixed
 ``diff_scale``; without it, the matrix's field settings.
@@ -24,6 +27,7 @@ import numpy as np
 from appliance.evaluation.sceneflow import common_mean_velocities, frame_metrics
 from benchmarks.common import matrix_scene, scene_arguments
 from processing.chain import ChainState, compute_scene_flow
+from processing.metrics import sceneflow as sm
 from processing.synthetic.reference import triplet_reference
 
 #: A component of the reference below this share of its speed has no meaningful share.
@@ -44,6 +48,39 @@ def component_shares(measured: np.ndarray, reference: np.ndarray,
     return out
 
 
+def magnitude_factors(velocity: np.ndarray, region: np.ndarray, reference: np.ndarray,
+                      reference_mask: np.ndarray) -> tuple[float, float, float] | None:
+    """|V_avg| / |V*_avg| of Eq. 10 as the product of three factors.
+
+    Parameters
+    ----------
+    velocity, reference : ndarray, shape (H, W, 3)
+        Measured V and reference V*, m/s (the reference may hold NaN off its mask).
+    region, reference_mask : ndarray, shape (H, W), bool
+        The measured mean's pixels (segmented and valid) and the reference's gas.
+
+    Returns
+    -------
+    (float, float, float) or None
+        ``extra`` = |V_avg(region)| / |V_avg(common)|: the segmented pixels that are not the
+        reference's gas; ``velocity`` = |V_avg(common)| / |V*_avg(common)|: the measurement
+        where both count gas; ``coverage`` = |V*_avg(common)| / |V*_avg(reference mask)|:
+        the reference's gas the segmentation leaves out. Their product is |V_avg| /
+        |V*_avg|, i.e. 1 - RMVE / 100 % for a short mean. None without a common pixel.
+    """
+    common = region & reference_mask
+    if not common.any():
+        return None
+    speed = {name: float(np.linalg.norm(sm.mean_velocity(field, mask)))
+             for name, field, mask in (("measured", velocity, region),
+                                       ("measured_common", velocity, common),
+                                       ("reference_common", reference, common),
+                                       ("reference", reference, reference_mask))}
+    return (speed["measured"] / speed["measured_common"],
+            speed["measured_common"] / speed["reference_common"],
+            speed["reference_common"] / speed["reference"])
+
+
 def _fmt(v: np.ndarray) -> str:
     return "(" + ", ".join("  n/a" if not np.isfinite(x) else f"{x:5.2f}" for x in v) + ")"
 
@@ -56,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
     print("triple  pixels  V measured (m/s)        V reference (m/s)       d (px)  d' (px)"
           "  scale      flags")
-    measured, truth, rmve, aemv = [], [], [], []
+    measured, truth, rmve, aemv, factors = [], [], [], [], []
     for i in range(len(frames) - 2):
         f0, f1, f2 = frames[i:i + 3]
         res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
@@ -67,6 +104,9 @@ def main(argv: list[str] | None = None) -> int:
         if metrics["rmve"] is not None:
             rmve.append(metrics["rmve"])
             aemv.append(metrics["aemv"])
+        split = magnitude_factors(res.velocity, res.gas_mask & res.valid, ref, ref_mask)
+        if split is not None:
+            factors.append(split)
         v, r, both = common_mean_velocities(res.velocity, res.valid, res.gas_mask, ref,
                                             ref_mask)
         if v is None or r is None:
@@ -86,6 +126,11 @@ def main(argv: list[str] | None = None) -> int:
     if rmve:
         print(f"scene RMVE {np.mean(rmve):.1f} %, AEMV {np.mean(aemv):.1f} deg "
               f"({len(rmve)} triples; as `ogiflow eval robustness`)")
+    if factors:
+        extra, vel, cover = np.mean(factors, axis=0)
+        print(f"|V_avg| / |V*_avg| as factors (means over the triples): segmented beyond "
+              f"the gas {extra:.3f} x velocity on the common pixels {vel:.3f} x the gas "
+              f"left out {cover:.3f}")
     return 0
 
 

@@ -50,3 +50,29 @@ def test_a_component_the_reference_hardly_has_gets_no_share() -> None:
     np.testing.assert_allclose(shares[:2], (0.9, 0.8))
     assert np.isnan(shares[2])
     assert np.isnan(vc.component_shares(np.ones(3), np.zeros(3))).all()
+
+
+def test_the_magnitude_splits_into_extra_pixels_velocity_and_coverage() -> None:
+    """A reference of 2 m/s on its gas, 1 m/s where the segmentation missed it; measured
+    1.5 m/s on the common pixels and 0 on pixels segmented beyond the gas: each factor
+    is its own share and the product is |V_avg| / |V*_avg|."""
+    h, w = 20, 40
+    ref_mask = np.zeros((h, w), bool)
+    ref_mask[:, :30] = True
+    reference = np.full((h, w, 3), np.nan, np.float32)
+    reference[:, :20] = (2.0, 0.0, 0.0)
+    reference[:, 20:30] = (1.0, 0.0, 0.0)  # the faint part the segmentation misses
+    velocity = np.zeros((h, w, 3), np.float32)
+    velocity[:, :20] = (1.5, 0.0, 0.0)
+    region = np.zeros((h, w), bool)
+    region[:, :20] = True
+    region[:, 30:35] = True  # segmented, not gas, still: V = 0
+    split = vc.magnitude_factors(velocity, region, reference, ref_mask)
+    assert split is not None
+    extra, vel, cover = split
+    np.testing.assert_allclose((extra, vel, cover), (20 / 25, 0.75, 2.0 / (5.0 / 3.0)),
+                               rtol=1e-6)
+    measured = np.linalg.norm(velocity[region].mean(axis=0))
+    truth = np.linalg.norm(reference[ref_mask].mean(axis=0))
+    np.testing.assert_allclose(extra * vel * cover, measured / truth, rtol=1e-6)
+    assert vc.magnitude_factors(velocity, np.zeros_like(region), reference, ref_mask) is None
