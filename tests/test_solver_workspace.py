@@ -1,7 +1,7 @@
 """The solvers' workspace: one buffer per thread that every level size reuses.
 
 Whatever an earlier, larger level left in that buffer must not reach a solution: the
-kernels write every pixel's entry before reading it, and ``prepare_workspace`` zeroes the
+kernels write every pixel's entry before reading it, and carving a workspace zeroes the
 rest. Checked by filling the buffer with NaN first: a single stale value read through a
 zero weight would turn the result into NaN.
 """

@@ -215,31 +215,6 @@ def finish_diagonals(coef: np.ndarray, a11: np.ndarray, a22: np.ndarray, w2: int
 
 
 @numba.njit(cache=True, error_model="numpy")
-def prepare_workspace(ws: Workspace) -> None:
-    """Make a workspace carved from memory an earlier level used ready for the kernels.
-
-    Zeroes, in every compact array of a colour, the entries that hold no pixel
-    (:func:`processing.solvers.redblack.clear_outside`): every kernel writes a pixel's
-    entry before it reads it, so these are all that an earlier level's values could reach
-    the solution through (``tests/test_solver_workspace.py``).
-    """
-    width = ws.shape[1]
-    for c in range(2):
-        for k in range(ws.inputs.shape[0]):
-            redblack.clear_outside(ws.inputs[k, c], c, width)
-        for k in range(ws.coefs[c].shape[0]):
-            redblack.clear_outside(ws.coefs[c][k], c, width)
-        redblack.clear_outside(ws.x1[c], c, width)
-        redblack.clear_outside(ws.x2[c], c, width)
-        redblack.clear_outside(ws.x1_0[c], c, width)
-        redblack.clear_outside(ws.x2_0[c], c, width)
-        redblack.clear_outside(ws.a11[c], c, width)
-        redblack.clear_outside(ws.a22[c], c, width)
-        redblack.clear_outside(ws.psi1[c], c, width)
-        redblack.clear_outside(ws.psi2[c], c, width)
-
-
-@numba.njit(cache=True, error_model="numpy")
 def begin_warp(x1_full: np.ndarray, x2_full: np.ndarray, ws: Workspace) -> None:
     """Split both unknowns into compact form, once per warp.
 

@@ -25,7 +25,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from processing.solvers import lagged, pyramid, redblack
+from processing.solvers import pyramid, redblack
 
 Fields = tuple[np.ndarray, ...]
 LevelSolver = Callable[[int, Fields], Fields]
@@ -73,6 +73,11 @@ class Workspace(NamedTuple):
 #: Compact planes of one level size in a workspace: the inputs, four pairs of unknowns,
 #: two systems, four pairs of diagonals and weights, the scratch.
 N_PLANES = 2 * N_INPUTS + 8 + 2 * redblack.N_PLANES + 8 + 1
+#: The colour of each plane in :func:`_carve`'s order (-1: the scratch, which every kernel
+#: writes whole before reading), for :func:`processing.solvers.redblack.clear_outside_planes`.
+_PLANE_COLOURS = np.array([*(k % 2 for k in range(2 * N_INPUTS)), *(0, 1) * 4,
+                           *(0,) * redblack.N_PLANES, *(1,) * redblack.N_PLANES,
+                           *(0, 1) * 4, -1], np.int8)
 
 _local = threading.local()
 
@@ -81,7 +86,9 @@ def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
     """A workspace for an (H, W) level whose arrays are C-contiguous views of ``buffer``
     (at least :data:`N_PLANES` compact planes), ready for the kernels: every entry that
     holds no pixel zeroed (:func:`processing.solvers.redblack.clear_outside`),
-    whatever an earlier level left there."""
+    whatever an earlier level left there. The kernels write every pixel's entry before
+    they read it, so those entries are all that an earlier level's values could reach the
+    solution through (``tests/test_solver_workspace.py``)."""
     cshape = redblack.compact_shape(height, width)
     plane = cshape[0] * cshape[1]
     planes = buffer[:N_PLANES * plane].reshape(N_PLANES, *cshape)
@@ -101,7 +108,7 @@ def _carve(buffer: np.ndarray, height: int, width: int) -> Workspace:
     ws = Workspace(shape=(height, width), inputs=inputs, x1=x1, x2=x2, x1_0=x1_0, x2_0=x2_0,
                    coefs=coefs, a11=pair(), a22=pair(), psi1=pair(),
                    psi2=pair(), s2=take(1)[0])
-    lagged.prepare_workspace(ws)
+    redblack.clear_outside_planes(planes, _PLANE_COLOURS, width)
     return ws
 
 
