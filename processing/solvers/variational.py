@@ -73,8 +73,9 @@ class Workspace(NamedTuple):
 #: Compact planes of one level size in a workspace: the inputs, four pairs of unknowns,
 #: two systems, four pairs of diagonals and weights, the scratch.
 N_PLANES = 2 * N_INPUTS + 8 + 2 * redblack.N_PLANES + 8 + 1
-#: The colour of each plane in :func:`_carve`'s order (-1: the scratch, which every kernel
-#: writes whole before reading), for :func:`processing.solvers.redblack.clear_outside_planes`.
+#: The colour of each plane in :func:`_carve`'s order (-1: the scratch, which
+#: :func:`processing.solvers.lagged.lagged_psi` zeroes whole before every use), for
+#: :func:`processing.solvers.redblack.clear_outside_planes`.
 _PLANE_COLOURS = np.array([*(k % 2 for k in range(2 * N_INPUTS)), *(0, 1) * 4,
                            *(0,) * redblack.N_PLANES, *(1,) * redblack.N_PLANES,
                            *(0, 1) * 4, -1], np.int8)
