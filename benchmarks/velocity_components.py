@@ -68,17 +68,14 @@ def magnitude_factors(velocity: np.ndarray, region: np.ndarray, reference: np.nd
         the reference's gas the segmentation leaves out. Their product is |V_avg| /
         |V*_avg|, i.e. 1 - RMVE / 100 % for a short mean. None without a common pixel.
     """
-    common = region & reference_mask
-    if not common.any():
+    measured_common, reference_common, _ = common_mean_velocities(
+        velocity, region, region, reference, reference_mask)
+    if measured_common is None or reference_common is None:
         return None
-    speed = {name: float(np.linalg.norm(sm.mean_velocity(field, mask)))
-             for name, field, mask in (("measured", velocity, region),
-                                       ("measured_common", velocity, common),
-                                       ("reference_common", reference, common),
-                                       ("reference", reference, reference_mask))}
-    return (speed["measured"] / speed["measured_common"],
-            speed["measured_common"] / speed["reference_common"],
-            speed["reference_common"] / speed["reference"])
+    speed = [float(np.linalg.norm(v)) for v in (
+        sm.mean_velocity(velocity, region), measured_common, reference_common,
+        sm.mean_velocity(reference, reference_mask))]
+    return speed[0] / speed[1], speed[1] / speed[2], speed[2] / speed[3]
 
 
 def _fmt(v: np.ndarray) -> str:

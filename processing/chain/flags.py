@@ -11,13 +11,15 @@ import numpy as np
 
 from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.order_statistics import median, quantile
+from processing.preprocess.registration import CHECKED_ABOVE_PX
 
 #: Flags of a triple whose data do not fix the constant part of d and d' (see
 #: :func:`processing.stereo.constant_mode.constant_mode_step`).
 UNTRUSTED_FOR_CONSTANT_MODE = frozenset({"registration_rejected", "low_contrast"})
 
-#: A shift below this (px) counts as no jitter for the ``jitter_corrected`` flag.
-JITTER_FLAG_PX = 0.05
+#: A shift below this (px) counts as no jitter for the ``jitter_corrected`` flag: the
+#: registration's bound below which a shift changes no differential image measurably.
+JITTER_FLAG_PX = CHECKED_ABOVE_PX
 #: Peak-to-noise ratio of the raw differential image below which ``low_contrast`` is
 #: flagged: the strongest change is within this many noise standard deviations.
 LOW_CONTRAST_RATIO = 6.0

@@ -51,7 +51,8 @@ MIN_REGISTRATION_SIZE = 16
 GIVE_UP_BEYOND_PX = 1.0
 #: A converged shift longer than this (px) must fit the static background better than the
 #: opposite shift (:data:`MAX_COST_RATIO`); a shorter one changes no differential image
-#: measurably (the chain's ``jitter_corrected`` flag starts there too).
+#: measurably (the chain's ``jitter_corrected`` flag starts there too,
+#: :data:`processing.chain.flags.JITTER_FLAG_PX`).
 CHECKED_ABOVE_PX = 0.05
 #: Largest ratio of the background's robust residual at a shift d to that at -d for d to be
 #: camera jitter. -d, not 0: resampling at a fractional shift smooths the noise, so against
