@@ -35,10 +35,19 @@ def test_matrix_runs_reuses_one_simulation_and_reports(tmp_path: Path) -> None:
         for key in ("rmve", "aemv", "aee_3d_mm_s", "sa", "false_gas"):
             assert p[key] is None or np.isfinite(p[key])
         assert set(r["scenes"]) == {TINY.scenes[0].name}
+        # the scene's mean velocity against its reference's, pooled as the scenes' mean
+        scene = r["scenes"][TINY.scenes[0].name]
+        frames = [f for f in scene["frames"] if f["mean_velocity"] is not None]
+        got = np.mean([f["mean_velocity"] for f in frames], axis=0)
+        ref = np.mean([f["reference_mean_velocity"] for f in frames], axis=0)
+        expected = 100.0 * abs(1.0 - np.linalg.norm(got) / np.linalg.norm(ref))
+        assert scene["rmve_of_mean"] == pytest.approx(expected)
+        assert p["rmve_of_mean"] == scene["rmve_of_mean"]
+        assert p["aemv_of_mean"] == scene["aemv_of_mean"]
     # jitter on the textured plant wall is measured and removed
     assert res["jitter 0.3 px"]["flags"].get("jitter_corrected", 0) >= 1
     text = rb.format_table(res)
-    assert "jitter 0.3 px" in text and "false" in text
+    assert "jitter 0.3 px" in text and "false" in text and "mean V: RMVE/%" in text
     doc = json.dumps(rb.public(res))
     assert "NaN" not in doc
     # a second run reads the cache

@@ -52,6 +52,26 @@ def test_aemv_hand_computed() -> None:
     assert sm.aemv([0, 0, 0], [1, 0, 0]) is None
 
 
+def test_errors_of_sequence_mean_average_out_scatter_but_keep_a_bias() -> None:
+    ref = [[1.0, 0.0, 0.0]] * 3
+    # frames 10 % fast and 10 % slow, one frame without a measurement: no error on the mean
+    scattered = [[1.1, 0.0, 0.0], [0.9, 0.0, 0.0], None]
+    assert sm.rmve(ref[0], scattered[0]) == pytest.approx(10.0)
+    assert sm.errors_of_sequence_mean(scattered, ref) == (pytest.approx(0.0), pytest.approx(0.0))
+    # a frame turned 30 deg up and one 30 deg down: no angle on the mean, but its length is
+    # the cosine's (cos 30 deg = 0.866 of the reference)
+    c, s = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    rmve, aemv = sm.errors_of_sequence_mean([[c, s, 0.0], [c, -s, 0.0]], ref[:2])
+    assert rmve == pytest.approx(100.0 * (1.0 - c)) and aemv == pytest.approx(0.0, abs=1e-6)
+    # 20 % fast in every frame stays 20 %; a frame whose reference is missing is left out
+    biased = sm.errors_of_sequence_mean([[0.0, 1.2, 0.0]] * 2 + [[5.0, 0.0, 0.0]],
+                                        [[0.0, 1.0, 0.0]] * 2 + [None])
+    assert biased == (pytest.approx(20.0), pytest.approx(0.0, abs=1e-6))
+    assert sm.errors_of_sequence_mean([None], ref[:1]) == (None, None)
+    with pytest.raises(ValueError, match="one reference mean per computed mean"):
+        sm.errors_of_sequence_mean(scattered, ref[:2])
+
+
 def test_aee_3d_hand_computed() -> None:
     ref = _field([[1, 0, 0], [0, 1, 0], [0, 0, 1]])
     got = _field([[1, 0, 0], [0, 4, 4], [9, 9, 9]])

@@ -190,7 +190,10 @@ def aggregate(frames: list[Metrics]) -> Metrics:
     """Sequence summary of one method from its per-frame metrics (None where undefined).
 
     ``undefined`` counts, per metric, the frames where it was undefined (left out of the
-    mean); a metric undefined in every frame is None.
+    mean); a metric undefined in every frame is None. ``rmve_of_mean`` and ``aemv_of_mean``
+    are Eq. 10's errors of the frames' mean velocity
+    (:func:`processing.metrics.sceneflow.errors_of_sequence_mean`): what a leak event
+    spanning the frames reports as its mean velocity.
     """
     out: Metrics = {"n_frames": len(frames)}
     undefined: dict[str, int] = {}
@@ -209,6 +212,8 @@ def aggregate(frames: list[Metrics]) -> Metrics:
         if n_undef:
             undefined[f"r_sf_{axis}"] = n_undef
     out["r_sf"] = r
+    out["rmve_of_mean"], out["aemv_of_mean"] = sm.errors_of_sequence_mean(
+        [f["mean_velocity"] for f in frames], [f["reference_mean_velocity"] for f in frames])
     out["undefined"] = undefined
     out["frames"] = frames
     return out

@@ -15,6 +15,11 @@ The paper's Eq. 10 and the sentences around it define, per frame:
   (50 bins over [0, max V*_c] per frame, see :func:`histogram_correlation`);
 - SA, the ratio of the segmented gas region to the reference gas region, in %.
 
+Beyond the paper, :func:`errors_of_sequence_mean` applies RMVE and AEMV to a sequence's mean
+velocity (the mean of the frames' V_avg against the mean of their V*_avg): what a velocity
+averaged over the sequence reads, as the appliance's leak events average theirs. A frame's
+error that scatters both ways averages out of it; a bias does not.
+
 Regions: the computed mean velocity is averaged over the segmented gas region where the
 velocity is valid (``gas_mask & valid``); the reference mean over the reference gas mask.
 The pixelwise metrics (AEE, AAE) run over the pixels where both are defined.
@@ -140,6 +145,36 @@ def aemv(reference_mean: np.ndarray | None, computed_mean: np.ndarray | None) ->
     if n == 0.0:
         return None
     return float(_angle_deg(float(ref @ got) / n))
+
+
+def errors_of_sequence_mean(computed_means: list[np.ndarray | None],
+                            reference_means: list[np.ndarray | None]
+                            ) -> tuple[float | None, float | None]:
+    """RMVE (%) and AEMV (deg) of Eq. 10 on a sequence's mean velocity.
+
+    Parameters
+    ----------
+    computed_means, reference_means : lists of array-like of 3 floats, or None
+        Per frame V_avg and V*_avg in m/s (:func:`mean_velocity`), in the same order; the
+        frames where either is None are left out of both means.
+
+    Returns
+    -------
+    (float or None, float or None)
+        :func:`rmve` and :func:`aemv` of the mean of the V_avg against the mean of the
+        V*_avg; None when no frame has both.
+    """
+    if len(computed_means) != len(reference_means):
+        raise ValueError(f"need one reference mean per computed mean, got "
+                         f"{len(computed_means)} and {len(reference_means)}")
+    both = [(_check_vector(c, "computed_means"), _check_vector(r, "reference_means"))
+            for c, r in zip(computed_means, reference_means, strict=True)]
+    both = [(c, r) for c, r in both if c is not None and r is not None]
+    if not both:
+        return None, None
+    got = np.mean([c for c, _ in both], axis=0)
+    ref = np.mean([r for _, r in both], axis=0)
+    return rmve(ref, got), aemv(ref, got)
 
 
 def _pair_region(reference: np.ndarray, computed: np.ndarray,
