@@ -297,13 +297,13 @@ def evaluate_condition(matrix: Matrix, cond: Condition, cache_dir: Path | None, 
             log(f"  {cond.name:<20} {scene.name:<22} RMVE {_f(p['rmve'])} % "
                 f"AEMV {_f(p['aemv'])} deg  false gas {_f(p['false_gas'], 2)}  "
                 f"mean V: RMVE {_f(p['rmve_of_mean'])} % AEMV {_f(p['aemv_of_mean'])} deg")
-    summary = aggregate(pooled)
+    together = aggregate(pooled)
     # The mean velocity of triples of different scenes means nothing: the pooled figure is
     # the scenes' mean of their own.
     for key in ("rmve_of_mean", "aemv_of_mean"):
         vals = [s[key] for s in scenes.values() if s[key] is not None]
-        summary[key] = float(np.mean(vals)) if vals else None
-    return {"condition": asdict(cond), "scenes": scenes, "pooled": summary,
+        together[key] = float(np.mean(vals)) if vals else None
+    return {"condition": asdict(cond), "scenes": scenes, "pooled": together,
             "flags": flags, "seconds": time.perf_counter() - start, "workers": workers}
 
 

@@ -192,8 +192,8 @@ def aggregate(frames: list[Metrics]) -> Metrics:
     ``undefined`` counts, per metric, the frames where it was undefined (left out of the
     mean); a metric undefined in every frame is None. ``rmve_of_mean`` and ``aemv_of_mean``
     are Eq. 10's errors of the frames' mean velocity
-    (:func:`processing.metrics.sceneflow.errors_of_sequence_mean`): what a leak event
-    spanning the frames reports as its mean velocity.
+    (:func:`processing.metrics.sceneflow.errors_of_sequence_mean`), as a leak event
+    averages the mean velocities of its frames.
     """
     out: Metrics = {"n_frames": len(frames)}
     undefined: dict[str, int] = {}

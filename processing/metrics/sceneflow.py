@@ -31,6 +31,8 @@ Every function is pure and checks shapes.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 #: Number of histogram bins of r_SF (paper Sec. 5.1).
@@ -147,14 +149,14 @@ def aemv(reference_mean: np.ndarray | None, computed_mean: np.ndarray | None) ->
     return float(_angle_deg(float(ref @ got) / n))
 
 
-def errors_of_sequence_mean(computed_means: list[np.ndarray | None],
-                            reference_means: list[np.ndarray | None]
+def errors_of_sequence_mean(computed_means: Sequence[Sequence[float] | np.ndarray | None],
+                            reference_means: Sequence[Sequence[float] | np.ndarray | None]
                             ) -> tuple[float | None, float | None]:
     """RMVE (%) and AEMV (deg) of Eq. 10 on a sequence's mean velocity.
 
     Parameters
     ----------
-    computed_means, reference_means : lists of array-like of 3 floats, or None
+    computed_means, reference_means : sequences of array-like of 3 floats, or None
         Per frame V_avg and V*_avg in m/s (:func:`mean_velocity`), in the same order; the
         frames where either is None are left out of both means.
 
