@@ -142,3 +142,43 @@ def test_the_daemon_refuses_the_gate_without_radiometric_curves() -> None:
     check_radiometry(gate, dataclasses.replace(bench_geometry(), curve_left=curve,
                                                curve_right=curve))
     check_radiometry(ChainParameters(), None)
+
+
+def test_the_objects_rim_beyond_the_removed_edge_does_not_set_the_scale(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A warm object's faint halo changes the wall by less than the gate's |D| but by far
+    more than faint gas: left in the raw differences it would set the normalisation scale
+    (the gas then squeezed into a few grey levels); within ``RIM_PX`` of the removed edge
+    it does not, and the scale is the gas's own."""
+    from appliance.evaluation.bench_input import geometry as bench_geometry
+    from processing.calibration.radiometric import CharacteristicCurve, band_radiance
+    from processing.preprocess import opaque_gate
+
+    curve = CharacteristicCurve(offset=2000.0, gain=4e5)
+    geo = dataclasses.replace(bench_geometry(), curve_left=curve, curve_right=curve)
+    l_gas = float(band_radiance(285.0, curve.band_m))
+    rng = np.random.default_rng(5)
+    wall = l_gas + 0.016 + 0.0005 * rng.standard_normal((240, 360)).astype(np.float32)
+
+    def counts(k: int, shift: int, with_object: bool) -> np.ndarray:
+        img = wall.copy()
+        tau = 0.9 - 0.02 * k
+        img[60:120, 100:220] = img[60:120, 100:220] * tau + l_gas * (1 - tau)
+        if with_object:
+            x = 120 + 3 * k
+            img[150:190, x - 8:x + 48] += 0.002  # the halo: |D| about 0.1
+            img[150:190, x:x + 40] = l_gas + 0.034
+        return np.rint(2000.0 + 4e5 * img[:, shift:shift + 320]).astype(np.uint16)
+
+    times = (0.0, 1 / 30, 2 / 30)
+    params = ChainParameters(d0=10.0, opaque_gate_gas_k=285.0)
+
+    def scale(with_object: bool) -> float:
+        left = [counts(k, 20, with_object) for k in range(3)]
+        right = [counts(k, 0, with_object) for k in range(3)]
+        return compute_scene_flow(left, right, times, geo, params, ChainState()).diff_scale
+
+    gas_only = scale(False)
+    assert scale(True) == pytest.approx(gas_only, rel=0.1)
+    monkeypatch.setattr(opaque_gate, "RIM_PX", 0)
+    assert scale(True) > 3 * gas_only
