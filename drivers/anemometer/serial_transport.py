@@ -273,8 +273,10 @@ class SerialAnemometer(Anemometer):
             self._backoff_s = min(2 * self._backoff_s, self.backoff_max_s)
             return False
         self._backoff_s = self.backoff_initial_s
-        self._stats["connects"] += 1
+        # The stamp before the count: whoever sees a new connection counted (another
+        # thread: health, a test) must read its stamp, not the previous connection's.
         self.connected_ns = self._last_valid_ns = time.monotonic_ns()
+        self._stats["connects"] += 1
         return True
 
     def _drop(self, reason: str) -> None:
