@@ -21,8 +21,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from benchmarks.common import matrix_scene, scene_arguments
-from processing.chain import ChainState, compute_scene_flow
+from benchmarks.common import matrix_scene, scene_arguments, scene_triples
 from processing.synthetic.reference import eq4_reference
 
 SCALES = tuple(np.round(np.arange(0.85, 1.351, 0.05), 2))
@@ -66,15 +65,11 @@ def along_ratio(flow: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> fl
 def main(argv: list[str] | None = None) -> int:
     ap = scene_arguments(__doc__ or "")
     scene, cond, frames, geometry, params = matrix_scene(ap, ap.parse_args(argv))
-    state = ChainState()
     s_px, b_m = geometry.camera_constant, geometry.baseline
     print(f"{scene.name} {cond.name}: per triple, on segmented gas pixels")
     print("triple  flow/reference  best s  residual(s=1)  residual(reference)")
     rows = []
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, f0, f1, res in scene_triples(frames, geometry, params):
         dt = f1.t_s - f0.t_s
         r0, r1 = (eq4_reference(f.gt_position, f.gt_velocity, s_px, b_m, dt)
                   for f in (f0, f1))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +18,7 @@ import numpy as np
 from appliance.evaluation.benchmark import single_thread
 
 __all__ = ["differential_like_pair", "matrix_scene", "median_ms", "scene_arguments",
-           "sequence_arguments", "single_thread"]
+           "scene_triples", "sequence_arguments", "single_thread"]
 
 
 def differential_like_pair(
@@ -108,3 +108,19 @@ def matrix_scene(ap: argparse.ArgumentParser, args: argparse.Namespace
         params = load_processing(args.config).chain_parameters(
             {"d0": params.d0, "sgm_num_disparities": params.sgm_num_disparities})
     return scene, cond, frames, geometry, params
+
+
+def scene_triples(frames: list[Any], geometry: Any, params: Any
+                  ) -> Iterator[tuple[int, Any, Any, Any]]:
+    """The chain over every triple of a scene's frames in one state, as ``ogiflow eval
+    robustness --workers 1`` runs it: per triple its index, its first two frames (what
+    its reference is made of, :func:`processing.synthetic.reference.triplet_reference`)
+    and the SceneFlowResult."""
+    from processing.chain import ChainState, compute_scene_flow
+
+    state = ChainState()
+    for i in range(len(frames) - 2):
+        f0, f1, f2 = frames[i:i + 3]
+        yield i, f0, f1, compute_scene_flow(
+            [f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
+            [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)

@@ -19,8 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmarks.common import matrix_scene, scene_arguments
-from processing.chain import ChainState, compute_scene_flow
+from benchmarks.common import matrix_scene, scene_arguments, scene_triples
 
 
 def registration_errors(removed_left: tuple[float, float], removed_right: tuple[float, float],
@@ -61,17 +60,12 @@ def vz_of_change(change_px: float, disparity_px: float, camera_constant_px: floa
 
 def main(argv: list[str] | None = None) -> int:
     ap = scene_arguments(__doc__ or "")
-    args = ap.parse_args(argv)
-    scene, cond, frames, geometry, params = matrix_scene(ap, args)
-    state = ChainState()
-    print(f"{scene.name} {cond.name}: registration error (removed - simulated), px")
-    print("triple  true L (dx, dy)   error L (dx, dy)   true R (dx, dy)   error R (dx, dy)"
+    scene, cond, frames, geometry, params = matrix_scene(ap, ap.parse_args(argv))
+    print(f"{scene.name} {cond.name}: registration error (removed - simulated), px\n"
+          "triple  true L (dx, dy)   error L (dx, dy)   true R (dx, dy)   error R (dx, dy)"
           "   d' error  flags")
     errors, disparities, rates = [], [], []
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, f0, f1, res in scene_triples(frames, geometry, params):
         jl = (f0.jitter_left_px, f1.jitter_left_px)
         jr = (f0.jitter_right_px, f1.jitter_right_px)
         err = registration_errors(res.shifts_left[0], res.shifts_right[0], jl, jr)

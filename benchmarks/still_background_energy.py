@@ -23,8 +23,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from benchmarks.common import matrix_scene, scene_arguments
-from processing.chain import ChainState, compute_scene_flow
+from benchmarks.common import matrix_scene, scene_arguments, scene_triples
 from processing.synthetic.reference import triplet_reference
 
 SHIFTS_PX = (-1.0, -0.5, -0.25, 0.0, 0.25, 0.5, 1.0)
@@ -93,16 +92,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="px kept clear of the reference's gas (default 10)")
     args = ap.parse_args(argv)
     scene, cond, frames, geometry, params = matrix_scene(ap, args)
-    state = ChainState()
     print(f"{scene.name} {cond.name}: still pixels; energy at shift s relative to s = 0")
     print("triple  pixels  left (flow): " + " ".join(f"{s:5.2f}" for s in SHIFTS_PX)
           + "  |  right (E3): " + " ".join(f"{s:5.2f}" for s in SHIFTS_PX)
           + "  |  |u|, |v|, |d'| px")
     rows = []
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, f0, f1, res in scene_triples(frames, geometry, params):
         _ref, ref_mask = triplet_reference(f0, f1)
         # A blanked pixel holds exactly 0 in both of the left view's differential images.
         blanked = (res.diff_left[0] == 0) & (res.diff_left[1] == 0)

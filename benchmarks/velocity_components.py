@@ -25,8 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from appliance.evaluation.sceneflow import common_mean_velocities, frame_metrics
-from benchmarks.common import matrix_scene, scene_arguments
-from processing.chain import ChainState, compute_scene_flow
+from benchmarks.common import matrix_scene, scene_arguments, scene_triples
 from processing.metrics import sceneflow as sm
 from processing.synthetic.reference import triplet_reference
 
@@ -86,15 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = scene_arguments(__doc__ or "")
     args = ap.parse_args(argv)
     scene, cond, frames, geometry, params = matrix_scene(ap, args)
-    state = ChainState()
     print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
     print("triple  pixels  V measured (m/s)        V reference (m/s)       d (px)  d' (px)"
           "  scale      flags")
     measured, truth, rmve, aemv, factors = [], [], [], [], []
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, f0, f1, res in scene_triples(frames, geometry, params):
         ref, ref_mask = triplet_reference(f0, f1)
         metrics = frame_metrics(res.velocity, res.valid, res.gas_mask, res.u_sf,
                                 res.u_sf_valid, ref, ref_mask)

@@ -22,8 +22,7 @@ import cv2
 import numpy as np
 
 from appliance.evaluation.sceneflow import common_mean_velocities
-from benchmarks.common import matrix_scene, scene_arguments
-from processing.chain import ChainState, compute_scene_flow
+from benchmarks.common import matrix_scene, scene_arguments, scene_triples
 from processing.flow.brox import brox_optical_flow
 from processing.solvers.derivatives import pixel_grid
 from processing.synthetic.reference import triplet_reference
@@ -59,13 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     scene, cond, frames, geometry, params = matrix_scene(ap, args)
     flow_args = {"alpha": params.alpha, "beta": params.beta, **params.flow_options}
-    state = ChainState()
     print(f"{scene.name} {cond.name}: per triple, on the pixels segmented, valid and gas")
     print("triple  pixels  chain d'  implied d' mean  median  u_L   u_R(x - d)  (px per frame)")
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, f0, f1, res in scene_triples(frames, geometry, params):
         ref, ref_mask = triplet_reference(f0, f1)
         _, _, both = common_mean_velocities(res.velocity, res.valid, res.gas_mask, ref,
                                             ref_mask)
