@@ -190,11 +190,15 @@ def out_of_band_motion(
     xr = np.rint(xs - d_local[ys, xs]).astype(int)
     keep = (xr >= 0) & (xr < w)
     right_mask[ys[keep], xr[keep]] = 1
-    k = 2 * int(dilate_px) + 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
-    left_d = cv2.dilate(out.astype(np.uint8), kernel).astype(bool)
-    right_d = cv2.dilate(right_mask, kernel).astype(bool)
-    return DepthGate(left_d, right_d, float(out.mean()))
+    return DepthGate(grown(out, int(dilate_px)), grown(right_mask, int(dilate_px)),
+                     float(out.mean()))
+
+
+def grown(mask: np.ndarray, radius_px: int) -> np.ndarray:
+    """``mask`` (H, W, bool or 0/1) dilated by a disk of ``radius_px`` px, (H, W) bool."""
+    k = 2 * radius_px + 1
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))
+    return cv2.dilate(mask.astype(np.uint8), disk) > 0
 
 
 def too_few_votes(outside: np.ndarray) -> bool:
@@ -286,9 +290,7 @@ def _verdict(outside: np.ndarray, inside: np.ndarray, d: np.ndarray, labels: np.
     local = _local_majority(outside, inside, d, labels > 0)
     if not reject.any():  # no region to restrict (the dilation is the dearest step here)
         return local, reject
-    reach = 2 * REGION_REACH_PX + 1
-    near = cv2.dilate(outside.astype(np.uint8),
-                      cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach, reach))) > 0
+    near = grown(outside, REGION_REACH_PX)
     out = (reject[labels] & near) | local
     return out, reject
 

@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from processing.calibration.radiometric import CharacteristicCurve, gas_radiance_and_floor
-from processing.preprocess.depth_gate import DepthGate, apply_gate
+from processing.preprocess.depth_gate import DepthGate, apply_gate, grown
 from processing.preprocess.differential import PreprocessedTriple
 from processing.preprocess.order_statistics import median
 
@@ -83,16 +83,13 @@ def opaque_edges(frames: Sequence[np.ndarray], raw0: np.ndarray, raw1: np.ndarra
     n, labels, stats, _ = cv2.connectedComponentsWithStats(edge.view(np.uint8), connectivity=8)
     keep = np.zeros(n, bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= MIN_PIXELS
-    pieces = keep[labels].view(np.uint8)
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * GROW_PX + 1, 2 * GROW_PX + 1))
-    return cv2.dilate(pieces, disk).view(bool)
+    return grown(keep[labels], GROW_PX)
 
 
 def _without_rim(triple: PreprocessedTriple, removed: np.ndarray) -> PreprocessedTriple:
     """``triple`` with its raw differences 0 within :data:`RIM_PX` of the ``removed``
     pixels; the normalised differences, which the solvers see, keep the rim."""
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * RIM_PX + 1, 2 * RIM_PX + 1))
-    rim = cv2.dilate(removed.view(np.uint8), disk).view(bool)
+    rim = grown(removed, RIM_PX)
     zero = np.float32(0)
     return dataclasses.replace(triple, raw0=np.where(rim, zero, triple.raw0),
                                raw1=np.where(rim, zero, triple.raw1))
