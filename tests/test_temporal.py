@@ -86,6 +86,43 @@ def test_cold_every_bounds_a_warm_run() -> None:
             for k in range(4)] == [False, True, True, True]
 
 
+@pytest.mark.parametrize("keep", [True, False])
+def test_a_scheduled_restart_goes_on_from_the_previous_flow(
+        keep: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """At a scheduled restart the disparity starts cold; the flow starts from the previous
+    triple's whole-frame flow with the warm options (``restart_keeps_flow``), or from zero
+    with the cold ones. A triple that does not follow on starts all cold either way."""
+    import processing.chain.driver as driver
+
+    starts: list[tuple[np.ndarray | None, dict]] = []
+    solve = driver.brox_optical_flow
+
+    def spy(*args, initial_flow=None, **kwargs):
+        starts.append((initial_flow, kwargs))
+        return solve(*args, initial_flow=initial_flow, **kwargs)
+
+    monkeypatch.setattr(driver, "brox_optical_flow", spy)
+    seq = sequence(9)
+    params = dataclasses.replace(PARAMS, cold_every=3, restart_keeps_flow=keep)
+    state = ChainState()
+    results = [compute_scene_flow(*triple(seq, k), GEOMETRY, params, state) for k in range(4)]
+    assert [r.warm for r in results] == [False, True, True, False]
+    restart, options = starts[3]
+    if keep:
+        assert restart is not None and restart.shape == (*SIZE, 2)
+        np.testing.assert_array_equal(restart, results[2].flow)
+        assert options["n_levels"] == params.warm_flow_options["n_levels"]
+    else:
+        assert restart is None and "n_levels" not in options
+    compute_scene_flow(*triple(seq, 6), GEOMETRY, params, state)  # a gap: all cold
+    assert starts[4][0] is None and state.restart_flow is None
+
+
+def test_bad_restart_keeps_flow_raises() -> None:
+    with pytest.raises(ValueError, match="restart_keeps_flow must be true or false"):
+        ChainParameters(restart_keeps_flow=1)  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("bad", [-1, 2.5, True, "3"])
 def test_bad_cold_every_raises(bad: object) -> None:
     with pytest.raises(ValueError, match="cold_every"):

@@ -143,7 +143,9 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
     history_triples = stream.change_triples(follows)
     history_share = history_weight(params.temporal_weight, history_triples)
     pyramids = PyramidCache()  # the left images' pyramids, shared by both solvers
-    flow = _flow(cl, params, cwarm, pyramids, flow_blanked(blanked, depth_blanked, params, box))
+    restart = stream.restart_flow if params.restart_keeps_flow else None
+    flow = _flow(cl, params, cwarm, pyramids, flow_blanked(blanked, depth_blanked, params, box),
+                 restart, stream.stride)
     clock.lap("flow")
     init = _initial_disparity(cl, cr, params, cwarm)
     clock.lap("disparity_init")
@@ -279,14 +281,17 @@ def _segment(area: np.ndarray | None, solved: np.ndarray | None, diff: np.ndarra
 
 
 def _flow(pl: PreprocessedTriple, params: ChainParameters, warm: WarmStart | None,
-          pyramids: PyramidCache, blanked: np.ndarray | None = None) -> np.ndarray:
+          pyramids: PyramidCache, blanked: np.ndarray | None = None,
+          restart: np.ndarray | None = None, stride: int = 1) -> np.ndarray:
     """Stage 2 (Sec. 4.2, Eq. 5): w_L between the left differential images, (H, W, 2) px;
-    no data term on ``blanked`` pixels (``params.flow_drop_blanked``)."""
+    no data term on ``blanked`` pixels (``params.flow_drop_blanked``). On a scheduled
+    restart the flow goes on from ``restart``, the previous triple's (``stride`` frames
+    back), as on a warm start (``params.restart_keeps_flow``)."""
+    start, steps = (restart, stride) if warm is None else (warm.flow, warm.steps)
     return brox_optical_flow(
         pl.diff0, pl.diff1, alpha=params.alpha, beta=params.beta, pyramid_cache=pyramids,
-        initial_flow=None if warm is None else warm.flow, blanked=blanked,
-        **solver_options(params.flow_options, params.warm_flow_for(warm.steps if warm else 1),
-                         warm is not None))
+        initial_flow=start, blanked=blanked,
+        **solver_options(params.flow_options, params.warm_flow_for(steps), start is not None))
 
 
 def _initial_disparity(pl: PreprocessedTriple, pr: PreprocessedTriple,

@@ -134,6 +134,13 @@ class ChainParameters:
         cold anyway, so that a wrong state does not live longer than that many triples
         (:func:`processing.chain.state.warm_start`); 0 never does. The default 30 (1 s at
         30 Hz and stride 1) costs about one cold start per second (+3 % of the chain).
+    restart_keeps_flow : bool
+        A scheduled restart (``cold_every``) starts the disparity and d' cold but the flow
+        warm, from the previous triple's: a cold flow converges slowly where the frame
+        carries no data, and a warm object blanked over a plume at the restart left the
+        whole plume's flow short for 20 triples, d' taking up the rest
+        (docs/evaluation-sceneflow.md, "A longer scene"). False restarts the flow cold too.
+        A scene change or an implausible triple always starts all cold.
     max_gas_speed_m_s : float
         A frame whose mean gas speed exceeds this (m/s) is not a measurement: its summary
         is invalid and flagged ``implausible_speed``, and the next triple starts cold. Gas
@@ -194,6 +201,7 @@ class ChainParameters:
     scale_forgetting: float = 0.02
     warm_start: bool = True
     cold_every: int = 30
+    restart_keeps_flow: bool = True
     max_gas_speed_m_s: float = 30.0
     active_region: bool = True
     region_margin_px: int = 24
@@ -228,9 +236,9 @@ class ChainParameters:
                 or self.region_margin_px < 0:
             raise ValueError(f"region_margin_px must be an integer >= 0, "
                              f"got {self.region_margin_px!r}")
-        if not isinstance(self.flow_drop_blanked, bool):
-            raise ValueError(f"flow_drop_blanked must be true or false, "
-                             f"got {self.flow_drop_blanked!r}")
+        for name in ("flow_drop_blanked", "restart_keeps_flow"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if not self.gate_tolerance_px >= 0:
             raise ValueError(f"gate_tolerance_px must be >= 0, got {self.gate_tolerance_px!r}")
         if self.opaque_gate_gas_k is not None and not 150.0 < self.opaque_gate_gas_k < 400.0:

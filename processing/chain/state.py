@@ -108,6 +108,9 @@ class ChainState:
         How many calls started warm and cold (for the benchmark and the tests).
     warm_run : int
         Warm starts since the last cold start (for ``ChainParameters.cold_every``).
+    restart_flow : ndarray or None
+        The previous triple's w_L (H, W, 2) px when this triple's cold start is a scheduled
+        restart (``cold_every``) of a run that follows on, else None.
     change_run : int
         Consecutive triples whose d' the kept ``previous_change`` averages
         (:func:`processing.stereo.coherence.history_weight`); 0 after a reset.
@@ -144,6 +147,7 @@ class ChainState:
     warm_starts: int = 0
     cold_starts: int = 0
     warm_run: int = 0
+    restart_flow: np.ndarray | None = None
     change_run: int = 0
     frames: dict[tuple[int, float], np.ndarray] = field(default_factory=dict)
     frames_reused: int = 0
@@ -215,16 +219,20 @@ class ChainState:
         ``cold_every`` > 0 makes every ``cold_every``-th triple of an unbroken warm run start
         cold anyway: a warm start cannot leave a wrong state (a d' pinned by a warm object in
         the first triple stayed wrong for the whole run, measured), a cold start can, so the
-        restarts bound how long an error lives. A scene change always starts cold. Counts
-        the decision in ``warm_starts`` / ``cold_starts``.
+        restarts bound how long an error lives; such a restart leaves the previous flow in
+        ``restart_flow``. A scene change always starts cold. Counts the decision in
+        ``warm_starts`` / ``cold_starts``.
         """
+        self.restart_flow = None
         if scene_change:
             self.cold_starts += 1
             return None
-        ok = (enabled and self.follows(times) and self.previous_flow is not None
-              and self.previous_disparity is not None and self.previous_change is not None
-              and not (cold_every > 0 and self.warm_run + 1 >= cold_every))
-        if not ok:
+        follows = (enabled and self.follows(times) and self.previous_flow is not None
+                   and self.previous_disparity is not None and self.previous_change is not None)
+        scheduled = cold_every > 0 and self.warm_run + 1 >= cold_every
+        if follows and scheduled:
+            self.restart_flow = self.previous_flow
+        if not follows or scheduled:
             self.cold_starts += 1
             self.warm_run = 0
             return None
