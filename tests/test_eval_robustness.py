@@ -84,6 +84,19 @@ def test_simulator_calibration_inverts_the_cameras_counts() -> None:
         assert np.allclose(back, radiance, atol=0.6 / model.gain)
 
 
+def test_the_run_that_simulates_a_scene_reads_what_the_cache_gives_later(
+        tmp_path: Path) -> None:
+    """The gas a first run simulates and the gas later runs load from the cache are the
+    same numbers, so a matrix reads the same whether its gas was cached or not."""
+    base = rb.scene_config(TINY.scenes[0], TINY)
+    fresh, cached = rb.gas_frames(base, tmp_path), rb.gas_frames(base, tmp_path)
+    assert len(fresh) == len(cached) == TINY.n_frames
+    for a, b in zip(fresh, cached, strict=True):
+        np.testing.assert_array_equal(a.column_left, b.column_left)
+        np.testing.assert_array_equal(a.column_right, b.column_right)
+        np.testing.assert_array_equal(a.truth.velocity, b.truth.velocity)
+
+
 def test_lens_condition_rectifies_frames_and_moves_the_truth_with_them(tmp_path: Path) -> None:
     """A calibrated lens row hands the chain rectification maps, and the ground truth is
     resampled by the same maps (a rectified pixel sees the ray of the distorted pixel its
