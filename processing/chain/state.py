@@ -17,22 +17,20 @@ and the gas moves little from one triple to the next. The live chain exploits bo
 :class:`ChainState` owns this life cycle; :func:`processing.chain.compute_scene_flow` asks it
 at each step what to do.
 
-The differential image D(t1, t2) of one triple is D(t0, t1) of the next only on the same
-pixel grid: :mod:`processing.preprocess.differential` registers t1 and t2 onto t0, so the
-next triple needs it on the t1 grid. When the triple left t1 where it was (its t0 -> t1 shift
-is zero: no jitter, a rejected shift, registration off) the two are the same numbers, and
-the next triple takes D(t1) raw and denoised from here (:meth:`ChainState.exchange_differences`:
-one difference and one denoising less per camera, about 1.2 ms of a warm 320x240 triple);
-otherwise re-using it would cost an interpolation, and it is computed anew. With two
-workers alternating, the other worker's triple left that difference: it comes through
-:attr:`ChainState.images` (:mod:`processing.chain.images`).
+D(t1, t2) of one triple is D(t0, t1) of the next only on the same pixel grid (the
+registration warps t1 and t2 onto t0): when the triple left t1 where it was (a zero, rejected
+or unestimated t0 -> t1 shift) the next triple takes D(t1) raw and denoised from here
+(:meth:`ChainState.exchange_differences`, about 1.2 ms of a warm 320x240 triple), from the
+other worker's triple through :attr:`ChainState.images` with two workers; otherwise it is
+computed anew.
 
 A warm start is taken only when this triple follows the previous one of the same
 :class:`ChainState` exactly ``stride`` frames later, as proved by the shared capture times
 (stride 1: (t1, t2) of the previous are (t0, t1) of this one; stride 2: t2 of the previous
 is t0 of this one). Anything else - a dropped frame, a restart, a reordered or repeated
-triple - is a cold start: full pyramid and the configured initial disparity. With two
-workers taking every other triple (the daemon), each worker's state has stride 2.
+triple - is a cold start: full pyramid and the configured initial disparity. A scheduled
+restart (``cold_every``) may keep the flow (``ChainParameters.restart_keeps_flow``). With
+two workers taking every other triple (the daemon), each worker's state has stride 2.
 """
 
 from __future__ import annotations
