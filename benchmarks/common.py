@@ -113,14 +113,10 @@ def matrix_scene(ap: argparse.ArgumentParser, args: argparse.Namespace
 def scene_triples(frames: list[Any], geometry: Any, params: Any
                   ) -> Iterator[tuple[int, Any, Any, Any]]:
     """The chain over every triple of a scene's frames in one state, as ``ogiflow eval
-    robustness --workers 1`` runs it: per triple its index, its first two frames (what
-    its reference is made of, :func:`processing.synthetic.reference.triplet_reference`)
-    and the SceneFlowResult."""
-    from processing.chain import ChainState, compute_scene_flow
+    robustness --workers 1`` runs it (:func:`appliance.evaluation.sceneflow.chain_triples`):
+    per triple its index, its first two frames (what its reference is made of,
+    :func:`processing.synthetic.reference.triplet_reference`) and the SceneFlowResult."""
+    from appliance.evaluation.sceneflow import chain_triples
 
-    state = ChainState()
-    for i in range(len(frames) - 2):
-        f0, f1, f2 = frames[i:i + 3]
-        yield i, f0, f1, compute_scene_flow(
-            [f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-            [f0.t_s, f1.t_s, f2.t_s], geometry, params, state)
+    for i, res in chain_triples(frames, geometry, params):
+        yield i, frames[i], frames[i + 1], res

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -266,6 +266,21 @@ def configured_workers(workers: int, source: str) -> int:
     return workers
 
 
+def chain_triples(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
+                  params: ChainParameters, *, workers: int = 1, triples: int | None = None
+                  ) -> Iterator[tuple[int, SceneFlowResult]]:
+    """The chain over the first ``triples`` (None: every) consecutive triples (i, i+1, i+2)
+    of ``frames``, taken as the daemon's ``workers`` take them (:func:`worker_states`): per
+    triple its index and the SceneFlowResult."""
+    states = worker_states(workers)
+    n = len(frames) - 2 if triples is None else triples
+    for i in range(n):
+        f0, f1, f2 = frames[i:i + 3]
+        yield i, compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
+                                    [f0.t_s, f1.t_s, f2.t_s], geometry, params,
+                                    states[i % workers])
+
+
 def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
                     params: ChainParameters, *, methods: Sequence[str] = METHODS,
                     max_triples: int | None = None, name: str = "sequence",
@@ -291,14 +306,10 @@ def evaluate_frames(frames: Sequence[SyntheticFrame], geometry: StereoGeometry,
     triples = n - 2 if max_triples is None else min(n - 2, max_triples)
     per_method: dict[str, list[Metrics]] = {m: [] for m in methods}
     flags: dict[str, int] = {}
-    states = worker_states(workers)
     fig: dict[str, Any] = {}
     start = time.perf_counter()
-    for i in range(triples):
-        f0, f1, f2 = frames[i:i + 3]
-        res = compute_scene_flow([f0.left, f1.left, f2.left], [f0.right, f1.right, f2.right],
-                                 [f0.t_s, f1.t_s, f2.t_s], geometry, params,
-                                 states[i % workers])
+    for i, res in chain_triples(frames, geometry, params, workers=workers, triples=triples):
+        f0, f1 = frames[i], frames[i + 1]
         for flag in res.summary.flags:
             flags[flag] = flags.get(flag, 0) + 1
         ref, ref_mask = triplet_reference(f0, f1)
