@@ -225,6 +225,57 @@ def test_a_scene_change_starts_cold_and_is_not_carried_into_the_next_triples() -
     assert (state.warm_starts + state.cold_starts) == 7
 
 
+def test_a_warm_object_walking_in_is_not_a_scene_change() -> None:
+    """A hot square (0.4 % of the picture, far stronger than the plane's changes) walks
+    into both views from frame 4 on: it is not a jump of the whole picture, so the warm
+    starts go on."""
+    left, right, times = sequence(9)
+    for frames in (left, right):
+        for k in range(4, 9):
+            x = 20 + 3 * (k - 4)
+            frames[k][100:116, x:x + 16] = 60000
+    seq = (left, right, times)
+    state = ChainState()
+    results = [compute_scene_flow(*triple(seq, k), GEOMETRY, PARAMS, state) for k in range(7)]
+    assert not any("scene_change" in r.summary.flags for r in results)
+    assert all(r.warm for r in results[1:])
+
+
+def test_a_scene_change_is_strong_and_spread_over_the_picture() -> None:
+    """More than SCENE_CHANGE_FACTOR times the tracked scale, on more than
+    SCENE_CHANGE_SHARE of one differential image: a scene change; strong on a small part
+    (an object) or spread but weak (a shift the registration rejected): not; no tracked
+    scale, no test."""
+    from processing.chain.state import SCENE_CHANGE_SHARE
+    from processing.preprocess.normalisation import DiffScaleTracker
+
+    rng = np.random.default_rng(3)
+    quiet = [rng.normal(0.0, 0.3, (128, 160)).astype(np.float32) for _ in range(4)]
+
+    def cut(images: list[np.ndarray]) -> bool:
+        return state.scene_change(state.scale_target(images, first=False), images)
+
+    state = ChainState()
+    assert not state.scene_change(None, quiet)
+    state.scale = DiffScaleTracker(1.0)
+    assert not cut(quiet)
+    spot = [q.copy() for q in quiet]
+    spot[3][40:50, 40:60] = 12.0  # 1 % of the picture at 12x the scale: an object
+    assert not cut(spot)
+    weak = [q.copy() for q in quiet]
+    weak[1] += 1.5  # one camera's whole picture 1.5x the scale brighter
+    assert not cut(weak)
+    shutter = [q.copy() for q in quiet]
+    shutter[1] += 4.0
+    assert cut(shutter)
+    edge = [q.copy() for q in quiet]
+    rows = int(np.ceil(2 * SCENE_CHANGE_SHARE * 128)) + 2  # every 2nd row is sampled
+    edge[0][:rows] = 4.0
+    assert cut(edge)
+    edge[0][:rows - 6] = 0.0  # now just under the share
+    assert not cut(edge)
+
+
 def test_a_registration_that_keeps_failing_pauses_with_the_same_results() -> None:
     """Every shift of the moving plane is rejected (it is all the texture there is): after
     ``registration_pause_after`` of them in a row a camera's shifts are taken as rejected

@@ -133,7 +133,7 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
         clock.lap("depth_gate")
     flags.extend(preprocess_flags(pl, pr))
     (pl, pr), scale, measured, target = _settle_scale(pl, pr, stream, scale, fixed is None)
-    cut = stream.scene_change(target)
+    cut = stream.scene_change(target, measured)
     flags.extend(["scene_change"] if cut else [])
     warm = stream.warm_start(times, params.warm_start, params.cold_every, scene_change=cut)
 

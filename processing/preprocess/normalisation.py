@@ -59,6 +59,13 @@ def pooled_quantile(diffs: Sequence[np.ndarray], quantile: float = 0.999) -> flo
     return order_statistics.quantile(pooled, quantile)
 
 
+def share_above(diff: np.ndarray, limit: float) -> float:
+    """Share of the pixels of a raw differential image with |D| > ``limit`` (radiance
+    units; every 2nd pixel in each direction, as :func:`pooled_quantile`), in [0, 1]."""
+    sample = np.abs(as_float_image(diff, "diff")[::2, ::2])
+    return float(np.count_nonzero(sample > limit)) / max(sample.size, 1)
+
+
 class DiffScaleTracker:
     """Online robust estimate of the normalisation scale, shared by both cameras.
 
