@@ -246,7 +246,7 @@ def test_a_scene_change_is_strong_and_spread_over_the_picture() -> None:
     SCENE_CHANGE_SHARE of one differential image: a scene change; strong on a small part
     (an object) or spread but weak (a shift the registration rejected): not; no tracked
     scale, no test."""
-    from processing.chain.state import SCENE_CHANGE_SHARE
+    from processing.chain.scene_change import SCENE_CHANGE_SHARE
     from processing.preprocess.normalisation import DiffScaleTracker
 
     rng = np.random.default_rng(3)

@@ -43,9 +43,10 @@ from typing import Any
 import numpy as np
 
 from processing.chain.images import ImageKey, ImageShare, difference_key
+from processing.chain.scene_change import is_scene_change
 from processing.chain.shifts import KnownShift, LocalShiftMemo, ShiftMemo
 from processing.preprocess.differential import PreprocessedTriple, SecondDifference
-from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile, share_above
+from processing.preprocess.normalisation import DiffScaleTracker, pooled_quantile
 
 #: Strides whose succession the shared capture times can prove (see the module docstring).
 STRIDES = (1, 2)
@@ -53,19 +54,6 @@ STRIDES = (1, 2)
 #: While the registration of a camera pauses (``ChainParameters.registration_pause_after``),
 #: one shift in this many is still estimated: at 30 Hz a probe every third of a second.
 PROBE_EVERY = 10
-
-#: A triple whose differential images ask for this many times the tracked normalisation
-#: scale is a scene change, not gas motion (measured: the simulated scene's loop jump asked
-#: for 4-9x, consecutive gas frames for 0.6-1.5x) - if the change is spread over the
-#: picture (:data:`SCENE_CHANGE_SHARE`).
-SCENE_CHANGE_FACTOR = 3.0
-
-#: ... and in one of its four raw differential images more than this share of the pixels
-#: changed by more than the tracked scale (in steady state about 0.1 % do: the scale is the
-#: 0.999 quantile of recent changes). Measured on the simulated 60-frame scenes: the loop
-#: jump 0.18-0.26, a 2-3 px bump 0.15-0.17; a warm object walking into or out of the view,
-#: which asks for up to 12x the scale, at most 0.014.
-SCENE_CHANGE_SHARE = 0.05
 
 Times = tuple[float, float, float]
 
@@ -204,24 +192,12 @@ class ChainState:
         return None if self.scale is None else self.scale.target(*measured)
 
     def scene_change(self, target: float | None, measured: Sequence[np.ndarray]) -> bool:
-        """Whether the whole picture changed at once in this triple (``target``: the scale
-        its raw differential images ``measured`` ask for, :meth:`scale_target`).
-
-        A flat-field shutter, a bumped camera or a jump of the scene makes a triple's
-        differential images far stronger than gas ever does, over a large part of the
-        picture. A warm start would carry that triple's fields into the next ones
-        (measured: four triples after the simulated scene's loop jump at 4-19 m/s against
-        1.3 m/s true), so it starts cold and leaves nothing to warm from. A warm object
-        walking into the view is as strong on a few hundred pixels: it is not a scene
-        change (the flag told the operator the camera had moved, and the triple got no
-        emission rate). One image is enough: shutters and bumps come a camera at a time.
-        Needs a tracked scale (a state after its first triple).
-        """
-        if self.scale is None or target is None:
-            return False
-        limit = self.scale.scale
-        return (target > SCENE_CHANGE_FACTOR * limit
-                and any(share_above(d, limit) > SCENE_CHANGE_SHARE for d in measured))
+        """Whether the whole picture changed at once in this triple
+        (:func:`processing.chain.scene_change.is_scene_change` against the tracked scale;
+        ``target``: what its raw differential images ``measured`` ask for,
+        :meth:`scale_target`). False before the state has a tracked scale."""
+        return is_scene_change(None if self.scale is None else self.scale.scale, target,
+                               measured)
 
     # -- warm start ----------------------------------------------------------------------
 
