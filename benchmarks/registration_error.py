@@ -12,7 +12,7 @@ registration's error in x and y for both cameras, and the error of the differenc
 two cameras' horizontal errors, which is what reaches d' (the left view's motion less the
 right one's along the rows). At the end: the RMS of each error over the scene, the mean of
 the d' error (a bias that does not average out) and the V_Z that much d' is at the gas's
-mean disparity (Eq. 4: V_Z = -Z f d' / d, Z = s b / d).
+mean disparity (Eq. 4: Z = s b / d, V_Z = (Z(d + d') - Z(d)) f).
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from benchmarks.common import matrix_scene, scene_arguments, scene_triples
+from processing.velocity.triangulate import scene_flow_velocity
 
 
 def registration_errors(removed_left: tuple[float, float], removed_right: tuple[float, float],
@@ -52,10 +53,13 @@ def registration_errors(removed_left: tuple[float, float], removed_right: tuple[
 
 def vz_of_change(change_px: float, disparity_px: float, camera_constant_px: float,
                  baseline_m: float, frame_rate_hz: float) -> float:
-    """V_Z in m/s that a d' of ``change_px`` is at disparity ``disparity_px`` (Eq. 4, to
-    first order: Z = s b / d, dZ = -Z d' / d per frame)."""
-    depth = camera_constant_px * baseline_m / disparity_px
-    return -depth * change_px / disparity_px * frame_rate_hz
+    """V_Z in m/s that a d' of ``change_px`` is at disparity ``disparity_px`` on the optical
+    axis: the chain's own Eq. 4 (:func:`processing.velocity.triangulate.scene_flow_velocity`)."""
+    velocity, _ = scene_flow_velocity(
+        np.zeros((1, 1, 2)), np.full((1, 1), float(disparity_px)),
+        np.full((1, 1), float(change_px)), principal_point=(0.0, 0.0),
+        camera_constant=camera_constant_px, baseline=baseline_m, dt=1.0 / frame_rate_hz)
+    return float(velocity[0, 0, 2])
 
 
 def main(argv: list[str] | None = None) -> int:
