@@ -407,6 +407,35 @@ def test_estimator_keeps_a_wide_margin_around_the_gas_out_of_the_background() ->
     assert sigma[45:55, 75:85] == pytest.approx(np.full((10, 10), expected), rel=0.01)
 
 
+@pytest.mark.parametrize("kelvin", [0.2, -0.2])
+def test_a_shutter_step_does_not_read_as_gas_or_hide_it(kelvin: float) -> None:
+    """After 30 frames the camera's offset steps by 0.2 K either way (a flat-field shutter):
+    the next frames are levelled onto the background, so the plume's column density reads
+    as before and the background none, although the background model has not followed yet
+    (unlevelled, the plume reads 0 after a step up, the background as gas after one down)."""
+    from processing.emission.estimator import EmissionEstimator, EmissionSettings
+
+    t_gas = 285.0
+    l_bg, l_gas = float(band_radiance(300.0)), float(band_radiance(t_gas))
+    step = float(band_radiance(300.0 + kelvin)) - l_bg
+    rng = np.random.default_rng(4)
+    cl = np.zeros((100, 120))
+    cl[40:60, 35:55] = 200.0
+    mask = cl > 0
+    est = EmissionEstimator(EmissionSettings(), (60.0, 50.0), S_PX, None)
+    noise = 2e-3 * abs(step)
+    for k in range(40):
+        frame = _eq1(cl, l_bg, l_gas, METHANE.alpha_per_ppm_m) + rng.normal(0, noise, cl.shape)
+        sigma = est.column_kg_m2(frame + (step if k >= 30 else 0.0), mask, t_gas)
+        if k == 29:
+            before = sigma.copy()
+    assert est.background.frames == 40
+    assert sigma[mask].mean() == pytest.approx(before[mask].mean(), rel=0.005)
+    expected = ppm_m_to_kg_m2(200.0, molar_mass_kg_mol=METHANE.molar_mass_kg_mol,
+                              temperature_k=t_gas)
+    assert abs(sigma[~mask].mean()) < 0.01 * expected
+
+
 @pytest.mark.parametrize("steps", [0, 1, 4, 30])
 def test_grow_mask_is_scipys_iterated_binary_dilation(steps: int) -> None:
     """The estimator's mask growth equals ``scipy.ndimage.binary_dilation(mask,

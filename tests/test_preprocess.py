@@ -8,10 +8,12 @@ import pytest
 from processing.calibration.radiometric import CharacteristicCurve
 from processing.preprocess.differential import (
     apply_rectification,
+    differential_image,
     preprocess_camera,
     radiometric_correction,
 )
 from processing.preprocess.normalisation import DiffScaleTracker, normalise_difference
+from processing.preprocess.offset import offset_step
 from processing.preprocess.stereo_triple import preprocess_stereo
 from processing.preprocess.translation import warp_translation
 
@@ -86,6 +88,34 @@ def test_normalisation_is_identical_for_both_cameras_and_all_frames() -> None:
     later = normalised(left_curve, background + 2.0 + gas, background + 2.0)
     np.testing.assert_allclose(later, left, atol=1e-4)
     assert float(left[0, 0]) == pytest.approx(0.5, abs=1e-4)
+
+
+@pytest.mark.parametrize("gas_radiance", [None, 5.0])
+def test_an_offset_step_of_the_camera_leaves_the_differential_image(
+        gas_radiance: float | None) -> None:
+    """A uniform step between two frames (a flat-field shutter) is the median of their
+    difference while gas changes under half of the picture: the differential image, plain
+    or as optical depth, is the one without the step; without a step (or one lost in the
+    noise) the difference is left as it is."""
+    background = _scene()
+    rng = np.random.default_rng(1)
+    earlier = background + rng.normal(0, 0.01, background.shape).astype(np.float32)
+    later = background + rng.normal(0, 0.01, background.shape).astype(np.float32)
+    later[20:60, 30:90] -= 0.4  # gas on a fifth of the picture
+    kwargs = {"gas_radiance": gas_radiance, "min_contrast": 0.5}
+    plain = differential_image(earlier, later, **kwargs)
+    stepped = differential_image(earlier, later + np.float32(3.0), **kwargs)
+    level = float(np.abs(earlier).mean())
+    assert offset_step(earlier - (later + np.float32(3.0)), level) == pytest.approx(-3.0,
+                                                                                   abs=0.01)
+    np.testing.assert_allclose(stepped, plain, atol=0.02)
+    if gas_radiance is None:  # no step: the difference as it is, noise and gas alone
+        np.testing.assert_array_equal(plain, earlier - later)
+    # A step within half the noise's median absolute deviation is taken for none.
+    assert offset_step(earlier - (later + np.float32(0.002)), level) == 0.0
+    # Without noise, a step under STEP_FLOOR of the picture's level (10 here) is rounding.
+    assert offset_step(np.full((8, 8), 5e-3, np.float32), level) == 0.0
+    assert offset_step(np.full((8, 8), 2e-2, np.float32), level) == pytest.approx(2e-2)
 
 
 def test_normalise_maps_scale_to_unit_interval() -> None:

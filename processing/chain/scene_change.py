@@ -1,7 +1,9 @@
 """Whether a triple is a scene change: the whole picture changed at once.
 
-A flat-field shutter, a bumped camera or a jump of the scene makes a triple's differential
-images far stronger than gas ever does, over a large part of the picture. A warm start would
+A bumped camera, a jump of the scene or a garbled frame makes a triple's differential
+images far stronger than gas ever does, over a large part of the picture (a flat-field
+shutter's uniform step is not one: the differential images are levelled,
+:func:`processing.preprocess.differential.offset_step`). A warm start would
 carry that triple's fields into the next ones (measured: four triples after the simulated
 scene's loop jump at 4-19 m/s against 1.3 m/s true), so the chain starts it cold and leaves
 nothing to warm from (:class:`processing.chain.state.ChainState`). Both conditions below
@@ -29,8 +31,8 @@ SCENE_CHANGE_FACTOR = 3.0
 #: changed by more than the tracked scale (in steady state about 0.1 % do: the scale is the
 #: 0.999 quantile of recent changes). Measured on the simulated 60-frame scenes: the loop
 #: jump 0.18-0.26, a 2-3 px bump 0.15-0.17; a warm object walking into or out of the view,
-#: which asks for up to 12x the scale, at most 0.014. One image is enough: shutters and
-#: bumps come a camera at a time.
+#: which asks for up to 12x the scale, at most 0.014. One image is enough: bumps come a
+#: camera at a time.
 SCENE_CHANGE_SHARE = 0.05
 
 

@@ -77,8 +77,8 @@ FLAGS: dict[str, str] = {
     "implausible_speed": "the mean gas speed exceeded max_gas_speed_m_s (a wrong disparity, "
                          "e.g. from two frames of different moments paired): not a "
                          "measurement, and the next triple starts cold",
-    "scene_change": "the whole picture changed at once (camera bumped, flat-field shutter, "
-                    "a jump in the scene): this triple started cold, its velocity is not "
+    "scene_change": "the whole picture changed at once (camera bumped, a jump in the "
+                    "scene, a garbled frame): this triple started cold, its velocity is not "
                     "gas motion and it has no emission rate",
 }
 

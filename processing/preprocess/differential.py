@@ -8,9 +8,9 @@ Per camera and per triple of consecutive frames (t0, t1, t2), in this order:
 3. jitter removal: t1 and t2 are registered onto t0
    (:mod:`processing.preprocess.registration`), so both differential images of the triple
    live on the t0 pixel grid;
-4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units, or,
-   when the gas radiance L_g is known, the differential optical depth
-   (:func:`differential_image`);
+4. differences (Eq. 2): D(t0) = I(t0) - I(t1), D(t1) = I(t1) - I(t2), in radiance units, less
+   the step of the camera's offset between the two frames (:func:`offset_step`), or, when
+   the gas radiance L_g is known, the differential optical depth (:func:`differential_image`);
 5. Sobolev denoising of each difference (:mod:`processing.preprocess.denoise`);
 6. normalisation to [0, 1] with one fixed scale shared by both cameras
    (:func:`normalise_difference`).
@@ -42,6 +42,7 @@ import numpy as np
 from processing.calibration.radiometric import CharacteristicCurve, apply_characteristic_curve
 from processing.preprocess.denoise import sobolev_denoise
 from processing.preprocess.normalisation import normalise_difference
+from processing.preprocess.offset import offset_step
 from processing.preprocess.registration import estimate_shift_checked
 from processing.preprocess.translation import warp_border_px, warp_translation
 from processing.validation import as_float_image, check_positive, check_same_shape
@@ -140,14 +141,19 @@ def differential_image(
     Returns
     -------
     ndarray, shape (H, W), float32
-        I(t) - I(t+1), or (I(t) - I(t+1)) / c with c = I_mid - L_g held at +-``min_contrast``
-        (module docstring): dimensionless, ~ the change of optical depth.
+        I(t) - I(t+1) less the camera's offset step between them (:func:`offset_step`), or
+        that divided by c = I_mid - L_g held at +-``min_contrast`` (module docstring, I(t+1)
+        brought onto I(t)'s offset): dimensionless, ~ the change of optical depth.
     """
     diff = earlier - later
+    step = offset_step(diff, float(np.abs(earlier[::2, ::2]).mean()))
+    # The later frame brought onto the earlier one's offset (a shutter, a NUC, a drift of
+    # the camera's offset between the two), so the difference is gas and noise alone.
+    diff -= np.float32(step)
     if gas_radiance is None:
         return diff
     floor = check_positive(min_contrast, "min_contrast")
-    contrast = 0.5 * (earlier + later) - np.float32(gas_radiance)
+    contrast = 0.5 * (earlier + later + np.float32(step)) - np.float32(gas_radiance)
     # The divisor keeps its sign (gas in front of a warmer or a colder background) and is
     # held at the floor where the background has about the gas's temperature.
     mag = np.maximum(np.abs(contrast), np.float32(floor))
