@@ -3,7 +3,7 @@
 A bumped camera, a jump of the scene or a garbled frame makes a triple's differential
 images far stronger than gas ever does, over a large part of the picture (a flat-field
 shutter's uniform step is not one: the differential images are levelled,
-:func:`processing.preprocess.differential.offset_step`). A warm start would
+:func:`processing.preprocess.offset.offset_step`). A warm start would
 carry that triple's fields into the next ones (measured: four triples after the simulated
 scene's loop jump at 4-19 m/s against 1.3 m/s true), so the chain starts it cold and leaves
 nothing to warm from (:class:`processing.chain.state.ChainState`). Both conditions below
