@@ -28,16 +28,18 @@ def test_a_scene_change_has_no_rate_and_does_not_feed_the_background() -> None:
         assert "scene_change" not in res.summary.flags
         rates.append(emission_rate(estimator, left[1], res, 285.0))
     assert any(r.rate_g_s is not None for r in rates)
-    # A flat-field shutter: from t1 on both cameras read 4000 counts more (the gas changes
-    # a pixel by at most ~600).
+    # A jump of the picture: from t1 on both cameras deliver garbled frames, random counts
+    # all over (the gas changes a pixel by at most ~600). A flat-field shutter's uniform
+    # step is no scene change: the differential images are levelled.
     k = 4
     t = tuple(float(x) for x in frames.times_s[k:k + 3])
+    rng = np.random.default_rng(2)
 
-    def brighter(f: np.ndarray) -> np.ndarray:
-        return (f.astype(np.int32) + 4000).clip(0, 65535).astype(np.uint16)
+    def garbled(f: np.ndarray) -> np.ndarray:
+        return rng.integers(2000, 30000, f.shape).astype(np.uint16)
 
-    left = [frames.left[k], *(brighter(f) for f in frames.left[k + 1:k + 3])]
-    right = [frames.right[k], *(brighter(f) for f in frames.right[k + 1:k + 3])]
+    left = [frames.left[k], *(garbled(f) for f in frames.left[k + 1:k + 3])]
+    right = [frames.right[k], *(garbled(f) for f in frames.right[k + 1:k + 3])]
     jump = compute_scene_flow(left, right, t, geo, params, state)
     assert "scene_change" in jump.summary.flags
     seen = estimator.background.frames
