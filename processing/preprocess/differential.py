@@ -149,7 +149,8 @@ def differential_image(
     step = offset_step(diff, float(np.abs(earlier[::2, ::2]).mean()))
     # The later frame brought onto the earlier one's offset (a shutter, a NUC, a drift of
     # the camera's offset between the two), so the difference is gas and noise alone.
-    diff -= np.float32(step)
+    if step:
+        diff -= np.float32(step)
     if gas_radiance is None:
         return diff
     floor = check_positive(min_contrast, "min_contrast")

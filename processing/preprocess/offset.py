@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from processing.preprocess.order_statistics import median
+
 #: A median of the difference beyond this many times its median absolute deviation is a
 #: step of the camera's offset. Without a step, noise and gas pull the median by 0.05-0.19
 #: of that deviation (simulated scene s23 under 0.03 K noise: -1 to -4 counts against 20-22),
@@ -61,9 +63,10 @@ def offset_step(diff: np.ndarray, level: float, where: np.ndarray | None = None)
     sample = diff[::2, ::2] if where is None else diff[::2, ::2][where[::2, ::2]]
     if sample.size == 0:
         return 0.0
-    step = float(np.median(sample))
+    sample = np.ascontiguousarray(sample, dtype=np.float32)
+    step = median(sample)
     # The floor first: most differences stop there, and the deviation is a second median.
     if abs(step) <= STEP_FLOOR * abs(level):
         return 0.0
-    spread = float(np.median(np.abs(sample - step)))
+    spread = median(np.abs(sample - np.float32(step)))
     return step if abs(step) > STEP_SPREAD * spread else 0.0
