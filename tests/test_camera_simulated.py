@@ -105,6 +105,26 @@ def test_image_jitter_shifts_by_subpixels_and_clockless_mode() -> None:
     assert f.device_ts_ns is None and f.device_frame_id == 0
 
 
+def test_a_flat_field_shutter_steps_the_whole_picture_up_and_back() -> None:
+    """Every 0.1 s (3 frames at 30 Hz) the picture's offset steps by 300 counts, up and
+    back down in turn, saturating at the format's top; a bad setting is refused."""
+    src = TexturePatternSource(n_frames=4)
+    cam = create_camera("simulated", source=src, shutter_every_s=0.1, shutter_counts=300,
+                        drop_rate=0.0, realtime=False)
+    with cam:
+        frames = [cam.grab() for _ in range(12)]
+    for f in frames:
+        k = f.device_frame_id
+        ref = src.stereo(k)[0].astype(np.int64)
+        step = 300 if (k // 3) % 2 else 0
+        expected = np.minimum(ref + step, np.iinfo(f.image.dtype).max)
+        np.testing.assert_array_equal(f.image.astype(np.int64), expected, err_msg=str(k))
+    assert {(f.device_frame_id // 3) % 2 for f in frames} == {0, 1}
+    for bad in ({"shutter_every_s": 0.0}, {"shutter_every_s": 1.0, "shutter_counts": 0}):
+        with pytest.raises(ValueError, match="shutter"):
+            create_camera("simulated", source=src, realtime=False, **bad)
+
+
 def test_realtime_mode_delivers_live_frames() -> None:
     cam = create_camera("simulated", fps=100.0, latency_s=0.001, jitter_s=0.0005)
     with cam:

@@ -73,11 +73,14 @@ def lines_until(stream: object, marker: str, timeout_s: float) -> list[str]:
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory: pytest.TempPathFactory, scene_cache: Path) -> dict:
-    """One simulated run of a few seconds; its recording, counters and ground truth."""
+    """One simulated run of a few seconds; its recording, counters and ground truth. The
+    left camera's offset steps by 200 counts between every two frames (a flat-field
+    shutter each frame: every frame pair a processed triple differences holds one)."""
     tmp = tmp_path_factory.mktemp("run")
     cfg = load_config(None, [*SMALL_SCENE, ("simulation.cache_dir", str(scene_cache)),
                              ("recording.dir", str(tmp / "rec")), ("live.mode", "save"),
-                             ("live.file", str(tmp / "live.rrd")), ("recording.fields_every", 5)])
+                             ("live.file", str(tmp / "live.rrd")), ("recording.fields_every", 5),
+                             ("cameras.left.options.shutter_every_s", 1 / 30)])
     app = Appliance(cfg, duration_s=240.0)
     # Stop on a condition, not after a fixed time: numba's cached solvers load slowly on a
     # busy machine, and the checks below need some results.
@@ -137,6 +140,29 @@ def test_cold_starts_are_counted(recorded: dict) -> None:
     health = [m["counters"] for _topic, m in messages]
     assert "cold_results" in health[-1]
     assert 0 <= health[-1]["cold_results"] <= c.cold_results
+
+
+def test_a_cameras_offset_steps_are_levelled_counted_and_shown(recorded: dict) -> None:
+    # Every processed triple's last frame pair holds one of the left camera's steps: each
+    # is counted once, for the left camera alone, flagged in the summary, reported in the
+    # health record and on the operator's page; the velocity reads as without them (the
+    # comparison with the truth below).
+    from appliance.live.status import health_words
+    from appliance.recording.reader import iter_json
+
+    c = recorded["app"].counters
+    stereo = c.results - c.single_results
+    assert c.offset_steps["left"] == stereo > 0 and c.offset_steps["right"] == 0
+    _reader, messages = iter_json(recorded["files"][0], ["/sceneflow/summary", "/health"])
+    messages = list(messages)
+    flags = [m["flags"] for topic, m in messages if topic == "/sceneflow/summary"]
+    assert len(flags) == c.results and all("offset_levelled" in f for f in flags)
+    health = [m["counters"] for topic, m in messages if topic == "/health"]
+    assert 0 < health[-1]["offset_steps_left"] <= stereo
+    assert health[-1]["offset_steps_right"] == 0
+    words = health_words(recorded["app"].health.snapshot())
+    assert any(w.startswith(f"offset steps levelled since the start: left {stereo} (one per ")
+               for w in words), words
 
 
 def test_file_carries_config_geometry_and_parameters(recorded: dict) -> None:

@@ -126,6 +126,9 @@ def _drive(app: Appliance, sub: Subscriber, out: dict[str, Any], tmp: Path) -> N
                     break
                 time.sleep(SAMPLE_S)
             out["samples"] = samples
+            out["health_items"] = desk.evaluate(
+                "() => [...document.querySelectorAll('[data-testid=\"health\"] li')]"
+                ".map((li) => [li.textContent, li.className])")
             phases.append(("sampled", round(time.monotonic() - t0, 1)))
             screenshot(desk, tmp / "page.png")
             out["clients"] = json.loads(subprocess.run(
@@ -177,7 +180,9 @@ def page_run(tmp_path_factory: pytest.TempPathFactory, scene_cache: Path):
         *SMALL_SCENE, ("simulation.cache_dir", str(scene_cache)),
         ("recording.dir", str(tmp / "rec")), ("live.mode", "off"),
         ("alarms.mqtt.enabled", True), ("alarms.mqtt.port", broker.port),
-        ("alarms.mqtt.topic_prefix", "site")])
+        ("alarms.mqtt.topic_prefix", "site"),
+        # a flat-field shutter of the right camera between every two frames (levelled)
+        ("cameras.right.options.shutter_every_s", 1 / 30)])
     app = Appliance(cfg, duration_s=1200.0, announce=True)
     out: dict[str, Any] = {"tmp": tmp, "app": app}
     close = PageServer.close
@@ -333,6 +338,27 @@ def test_many_clients_and_a_stalled_one_lose_no_frame(page_run: dict) -> None:
              for f in text_string_to_metric_families(page_run["after_clients"])
              for s in f.samples if s.name == "ogiflow_drops_total"}
     print(f"page client drops (the stalled one's and slow readers'): {drops['page']:.0f}")
+
+
+def test_a_cameras_levelled_offset_steps_are_shown_as_health_not_a_problem(
+        page_run: dict) -> None:
+    """The right camera's offset steps between every two frames: the page's health list
+    says how many were levelled, as information (not marked as a problem), /metrics and
+    the final line count them; the left camera's none."""
+    _ok(page_run)
+    items = page_run["health_items"]
+    steps = [(text, cls) for text, cls in items
+             if text.startswith("offset steps levelled since the start: right ")]
+    assert len(steps) == 1 and steps[0][1] != "problem", items
+    assert "left" not in steps[0][0].split(": ", 1)[1], items
+    counters = dict(re.findall(r'ogiflow_health_counter\{name="(offset_steps_\w+)"\} (\S+)',
+                               page_run["final_metrics"]))
+    assert float(counters["offset_steps_right"]) > 0 and float(counters["offset_steps_left"]) == 0
+    final = next(x for x in page_run["stderr"].splitlines()
+                 if x.startswith("ogiflow: stopped."))
+    levelled = re.search(r"offset steps levelled (\d+)/(\d+) \(left/right\)", final)
+    assert levelled, final
+    assert (int(levelled[1]), int(levelled[2])) == (0, int(float(counters["offset_steps_right"])))
 
 
 def test_metrics_equal_the_final_line(page_run: dict) -> None:

@@ -9,6 +9,7 @@ from processing.calibration.radiometric import CharacteristicCurve
 from processing.preprocess.differential import (
     apply_rectification,
     differential_image,
+    levelled_difference,
     preprocess_camera,
     radiometric_correction,
 )
@@ -103,8 +104,11 @@ def test_an_offset_step_of_the_camera_leaves_the_differential_image(
     later = background + rng.normal(0, 0.01, background.shape).astype(np.float32)
     later[20:60, 30:90] -= 0.4  # gas on a fifth of the picture
     kwargs = {"gas_radiance": gas_radiance, "min_contrast": 0.5}
-    plain = differential_image(earlier, later, **kwargs)
-    stepped = differential_image(earlier, later + np.float32(3.0), **kwargs)
+    plain, none = levelled_difference(earlier, later, **kwargs)
+    stepped, step = levelled_difference(earlier, later + np.float32(3.0), **kwargs)
+    # The step is reported (a shutter counted for the box's health), in the frames' unit.
+    assert none == 0.0 and step == pytest.approx(-3.0, abs=0.01)
+    np.testing.assert_array_equal(differential_image(earlier, later, **kwargs), plain)
     level = float(np.abs(earlier).mean())
     assert offset_step(earlier - (later + np.float32(3.0)), level) == pytest.approx(-3.0,
                                                                                    abs=0.01)

@@ -233,7 +233,9 @@ def test_a_flat_field_shutter_is_levelled_out(cameras: tuple[int, ...]) -> None:
     difference), so every triple reads as without the shutter (within 1 %: the plane moves
     everywhere, so its difference's median of 20 counts is left as it is without the
     shutter), warm, no scene change. Without the levelling the triple across the step reads
-    the plane's mean velocity 3 % (one camera) and 26 % (both) off."""
+    the plane's mean velocity 3 % (one camera) and 26 % (both) off. The triple whose D(t1)
+    spans the step (frames 2-4) reports it, flagged, for the stepped cameras alone; no
+    other triple does, so a health count counts each step once."""
     seq = sequence(9)
     left, right, times = sequence(9)
     for cam in cameras:
@@ -248,6 +250,10 @@ def test_a_flat_field_shutter_is_levelled_out(cameras: tuple[int, ...]) -> None:
         assert b.warm == a.warm and "scene_change" not in b.summary.flags
         va, vb = _mean_velocity(a), _mean_velocity(b)
         assert np.linalg.norm(vb - va) < 0.01 * np.linalg.norm(va), k
+        stepped_cams = [cam for cam in (0, 1) if b.offset_steps[cam]]
+        assert stepped_cams == (list(cameras) if k == 2 else []), (k, b.offset_steps)
+        assert ("offset_levelled" in b.summary.flags) == (k == 2), k
+        assert a.offset_steps == (0.0, 0.0) and "offset_levelled" not in a.summary.flags
 
 
 def test_a_warm_object_walking_in_is_not_a_scene_change() -> None:

@@ -57,7 +57,7 @@ def _chain_result(h: int = 6, w: int = 8) -> SimpleNamespace:
     mask[2:4, 3:6] = True
     return SimpleNamespace(
         summary=SimpleNamespace(to_dict=lambda: {"valid": True}), timings_ms={"flow": 1.0},
-        dt_s=0.033, diff_scale=1.0, rejected_shifts=0, warm=True,
+        dt_s=0.033, diff_scale=1.0, rejected_shifts=0, warm=True, offset_steps=(0.0, 0.0),
         diff_left=np.full((3, h, w), 0.5), diff_right=np.full((3, h, w), 0.5),
         flow=np.ones((h, w, 2), np.float32), disparity=np.full((h, w), 4.0, np.float32),
         disparity_change=np.zeros((h, w), np.float32),

@@ -156,7 +156,23 @@ def health_words(snapshot: Any, nominal_fps: float = 30.0) -> list[str]:
         fine.append("all devices delivering")
     if free is not None:
         fine.append(f"{free:.0f} GB free for recordings")
-    return problems + fine
+    steps = offset_step_words(counters, getattr(snapshot, "uptime_s", 0.0))
+    return problems + fine + ([steps] if steps else [])
+
+
+def offset_step_words(counters: Mapping[str, int], uptime_s: float) -> str | None:
+    """How often each camera's whole picture stepped (a flat-field shutter, a
+    non-uniformity correction, a drift of its offset) and was levelled out, since the
+    start; None when neither did. A camera that does so far more often than its
+    maker's shutter interval is unsteady (its housing's temperature, its power)."""
+    parts = []
+    for side in ("left", "right"):
+        n = int(counters.get(f"offset_steps_{side}", 0))
+        if n:
+            parts.append(f"{side} {n} (one per {duration_words(uptime_s / n)})")
+    if not parts:
+        return None
+    return "offset steps levelled since the start: " + ", ".join(parts)
 
 
 def _fmt_time(t_s: float | None) -> str:

@@ -72,6 +72,9 @@ class Counters:
     single_frames: int = 0
     #: Results of the single-camera chain (among ``results``).
     single_results: int = 0
+    #: Steps of a camera's offset (a flat-field shutter, a drift) levelled out of the
+    #: processed triples' differences, one per frame pair.
+    offset_steps: dict[str, int] = field(default_factory=_per_side)
 
 
 class Acquisition:

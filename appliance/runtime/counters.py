@@ -9,7 +9,7 @@ from typing import Any
 def health_counters(app: Any) -> dict[str, int]:
     """Every counter of a running :class:`~appliance.runtime.daemon.Appliance` for the
     health report: frames, losses, pairs, results, queue drops, recorder, live view, ring,
-    serial line and alarm sinks."""
+    serial line, alarm sinks and each camera's levelled offset steps."""
     c = app.counters
     out = {
         "frames_left": c.frames["left"], "frames_right": c.frames["right"],
@@ -22,6 +22,8 @@ def health_counters(app: Any) -> dict[str, int]:
         "frame_queue_drops": c.frame_queue_drops,
         "camera_timeouts": c.camera_timeouts, "camera_reconnects": c.camera_reconnects,
         "wind_samples": c.wind_samples, "single_camera_frames": c.single_frames,
+        "offset_steps_left": c.offset_steps["left"],
+        "offset_steps_right": c.offset_steps["right"],
     }
     if app.acquisition is not None:
         out["degraded_s"] = int(app.acquisition.watch.degraded_s(time.monotonic_ns()))

@@ -154,6 +154,8 @@ class Appliance:
             self.counters.results += 1
             self.counters.cold_results += not res.warm and res.single_camera is None
             self.counters.single_results += res.single_camera is not None
+            for side, levelled in zip(("left", "right"), res.offset_levelled, strict=True):
+                self.counters.offset_steps[side] += levelled
 
     def _truth_for(self, pair_index0: int) -> np.ndarray | None:
         """Simulator ground truth of the triple starting at ``pair_index0`` (simulated runs)."""

@@ -49,6 +49,7 @@ class MonoTriple:
     timings_ms: dict[str, float]
     diff1: np.ndarray | None = None  # I_diff(N + 1), for the emission rate's curtains
     rejected_shifts: int = 0
+    offset_step1: float = 0.0  # the camera's offset step levelled out of I_diff(N + 1)
 
 
 def mono_triple(frame: int, imgs: Sequence[np.ndarray], *, scale: float, register: bool,
@@ -93,7 +94,8 @@ def mono_triple(frame: int, imgs: Sequence[np.ndarray], *, scale: float, registe
                       (tuple(pre.shifts[0]), tuple(pre.shifts[1])),  # type: ignore[arg-type]
                       {"preprocess": (t1 - t0) * 1e3, "flow": (t2 - t1) * 1e3,
                        "segmentation": (t3 - t2) * 1e3},
-                      diff1=pre.diff1, rejected_shifts=int(pre.rejected_shifts))
+                      diff1=pre.diff1, rejected_shifts=int(pre.rejected_shifts),
+                      offset_step1=float(pre.offset_step1))
 
 
 def first_scale(imgs: Sequence[np.ndarray]) -> float:

@@ -53,6 +53,9 @@ class WorkerResult:
     raw_left: np.ndarray | None = None  # uint16 raw left frame at t0 (the operator's view)
     rate: FrameRate | None = None  # emission rate of the triple (None: not computed)
     warm: bool = False  # the solvers started from the worker's previous triple
+    #: Whether the left and the right camera's offset stepped between the triple's last
+    #: two frames (a shutter, a drift), levelled out of D(t1): each frame pair once.
+    offset_levelled: tuple[bool, bool] = (False, False)
     #: The camera of a single-camera result ("left"/"right"; its diff and raw frame travel
     #: as ``diff_left``/``raw_left``, the image the zones and the operator see); None: stereo.
     single_camera: str | None = None
@@ -93,6 +96,7 @@ def pack_result(res: SceneFlowResult, base: WorkerResult,
     base.diff_scale = res.diff_scale
     base.rejected_shifts = res.rejected_shifts
     base.warm = bool(res.warm)
+    base.offset_levelled = (bool(res.offset_steps[0]), bool(res.offset_steps[1]))
     base.gas_mask = grow(res.gas_mask, k) if k > 1 else res.gas_mask
     w = base.gas_mask.shape[1]
     gas = np.flatnonzero(base.gas_mask)
@@ -130,6 +134,8 @@ def pack_single(tr: Any, base: WorkerResult, camera: str, *, fields: bool = True
                     "speed": None, "angles_deg": None, "c_usf": None, "flags": flags}
     base.timings_ms = {**tr.timings_ms, "total": sum(tr.timings_ms.values())}
     base.rejected_shifts = tr.rejected_shifts
+    levelled = bool(tr.offset_step1)
+    base.offset_levelled = (levelled, False) if camera == "left" else (False, levelled)
     base.gas_mask = tr.mask
     base.gas_flow = tr.flow.reshape(-1, 2)[np.flatnonzero(tr.mask)]
     if fields:

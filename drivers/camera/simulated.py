@@ -30,7 +30,11 @@ minutes of simulated time take seconds).
 
 Images come from a shared pre-rendered :class:`~drivers.camera.sources.FrameSource`
 (left camera: the left image of frame ``k % n_frames``); the only per-frame work is an
-optional sub-pixel shift (``image_jitter_px``, one ``cv2.warpAffine``, ~0.1 ms).
+optional sub-pixel shift (``image_jitter_px``, one ``cv2.warpAffine``, ~0.1 ms) and an
+optional flat-field shutter (``shutter_every_s``): every that many seconds the camera's
+whole picture steps by ``shutter_counts``, up and back down in turn, as a camera's
+non-uniformity correction moves its offset (the chain levels such steps out and counts
+them, :func:`processing.preprocess.differential.levelled_difference`).
 """
 
 from __future__ import annotations
@@ -180,6 +184,11 @@ class SimulatedCamera(Camera):
     outage_after_s, outage_s : float
         Simulated outage (module docstring): vanish ``outage_after_s`` seconds after the
         first open of this label, for ``outage_s`` seconds (None: never).
+    shutter_every_s : float or None
+        A flat-field shutter every this many seconds (at least one frame; None: never):
+        frames ``k`` with ``(k // period) % 2 == 1`` read ``shutter_counts`` more.
+    shutter_counts : int
+        The step of the picture's offset at a shutter, counts (1-65535).
     """
 
     backend = "simulated"
@@ -205,6 +214,8 @@ class SimulatedCamera(Camera):
         label: str | None = None,
         outage_after_s: float | None = None,
         outage_s: float = 5.0,
+        shutter_every_s: float | None = None,
+        shutter_counts: int = 200,
     ) -> None:
         super().__init__(label=label or side)
         if side not in ("left", "right"):
@@ -214,8 +225,15 @@ class SimulatedCamera(Camera):
         if outage_after_s is not None and not (outage_after_s >= 0 and outage_s > 0):
             raise ValueError("outage_after_s must be >= 0 and outage_s > 0, got "
                              f"{outage_after_s!r} and {outage_s!r}")
+        if shutter_every_s is not None and not shutter_every_s > 0:
+            raise ValueError(f"shutter_every_s must be > 0 or null, got {shutter_every_s!r}")
+        if not 1 <= int(shutter_counts) <= 65535:
+            raise ValueError(f"shutter_counts must be 1-65535, got {shutter_counts!r}")
         self.side = side
         self._outage = (outage_after_s, outage_s)
+        self._shutter_period = (None if shutter_every_s is None
+                                else max(1, round(shutter_every_s * fps)))
+        self._shutter_counts = int(shutter_counts)
         self._source_spec = source
         self.timing = TimingModel(
             TimingParams(
@@ -300,6 +318,8 @@ class SimulatedCamera(Camera):
         image = self.source.stereo(k)[0 if self.side == "left" else 1]
         if self.image_jitter_px > 0:
             image = self._shift(image)
+        if self._shutter_period is not None and (k // self._shutter_period) % 2:
+            image = self._stepped(image)
         return Capture(
             image=image,
             pixel_format="Mono16",
@@ -326,6 +346,14 @@ class SimulatedCamera(Camera):
         return cv2.warpAffine(
             image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
         )
+
+    def _stepped(self, image: np.ndarray) -> np.ndarray:
+        """``image`` with the shutter's offset step, saturating at the format's top."""
+        if not np.issubdtype(image.dtype, np.integer):
+            return image + image.dtype.type(self._shutter_counts)
+        top = np.iinfo(image.dtype).max
+        return np.minimum(image.astype(np.int64) + self._shutter_counts, top).astype(
+            image.dtype)
 
     def _close(self) -> None:
         self.source = None

@@ -174,7 +174,8 @@ def compute_scene_flow(left: Sequence[np.ndarray], right: Sequence[np.ndarray],
         valid=valid, u_sf=u_sf, u_sf_valid=u_sf_valid, gas_mask=mask, phi=phi,
         summary=summary, diff_scale=scale, shifts_left=pl.shifts, shifts_right=pr.shifts,
         rejected_shifts=pl.rejected_shifts + pr.rejected_shifts, timings_ms=clock.total(),
-        warm=warm is not None, region=None if box is None else box.bounds)
+        warm=warm is not None, region=None if box is None else box.bounds,
+        offset_steps=(pl.offset_step1, pr.offset_step1))
     return upsampled_result(blocks, k) if at_camera_size else blocks
 
 

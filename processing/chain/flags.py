@@ -32,7 +32,9 @@ def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> lis
     paused registration did not estimate a shift (``ChainParameters.registration_pause_after``);
     ``jitter_corrected``: a shift of at least :data:`JITTER_FLAG_PX` was removed;
     ``low_contrast``: :func:`contrast_ratio` of the left camera below
-    :data:`LOW_CONTRAST_RATIO`.
+    :data:`LOW_CONTRAST_RATIO`; ``offset_levelled``: a camera's offset stepped between the
+    triple's last two frames and was levelled out of D(t1)
+    (:func:`processing.preprocess.differential.levelled_difference`).
     """
     flags = []
     if left.rejected_shifts or right.rejected_shifts:
@@ -42,6 +44,8 @@ def preprocess_flags(left: PreprocessedTriple, right: PreprocessedTriple) -> lis
         flags.append("jitter_corrected")
     if contrast_ratio(left) < LOW_CONTRAST_RATIO:
         flags.append("low_contrast")
+    if left.offset_step1 or right.offset_step1:
+        flags.append("offset_levelled")
     return flags
 
 

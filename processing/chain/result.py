@@ -54,6 +54,10 @@ class SceneFlowResult:
         Rows y0:y1 and columns x0:x1 (px) the solvers worked on (the active region,
         :mod:`processing.chain.region`); outside it nothing is measured and ``valid`` is
         False. None: the whole frame.
+    offset_steps : (float, float)
+        The step of the left and the right camera's offset levelled out of D(t1)
+        (:attr:`processing.preprocess.differential.PreprocessedTriple.offset_step1`),
+        radiance units (counts without a characteristic curve); 0.0: none.
     """
 
     times_s: tuple[float, float, float]
@@ -78,6 +82,7 @@ class SceneFlowResult:
     timings_ms: dict[str, float]
     warm: bool = False
     region: tuple[int, int, int, int] | None = None
+    offset_steps: tuple[float, float] = (0.0, 0.0)
 
 
 def frame_interval(times_s: Sequence[float]) -> float:

@@ -77,6 +77,10 @@ FLAGS: dict[str, str] = {
     "implausible_speed": "the mean gas speed exceeded max_gas_speed_m_s (a wrong disparity, "
                          "e.g. from two frames of different moments paired): not a "
                          "measurement, and the next triple starts cold",
+    "offset_levelled": "a camera's whole picture stepped between two frames (a flat-field "
+                       "shutter, a non-uniformity correction, a drift of its offset) and the "
+                       "step was levelled out of the differential image: informational, the "
+                       "velocity reads as without it",
     "scene_change": "the whole picture changed at once (camera bumped, a jump in the "
                     "scene, a garbled frame): this triple started cold, its velocity is not "
                     "gas motion and it has no emission rate",

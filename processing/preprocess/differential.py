@@ -126,7 +126,19 @@ def differential_image(
     gas_radiance: float | None = None,
     min_contrast: float = 0.0,
 ) -> np.ndarray:
-    """Differential image of two registered frames (Eq. 2), optionally as optical depth.
+    """Differential image of two registered frames (Eq. 2), optionally as optical depth:
+    :func:`levelled_difference` without the step it levelled out."""
+    return levelled_difference(earlier, later, gas_radiance, min_contrast)[0]
+
+
+def levelled_difference(
+    earlier: np.ndarray,
+    later: np.ndarray,
+    gas_radiance: float | None = None,
+    min_contrast: float = 0.0,
+) -> tuple[np.ndarray, float]:
+    """Differential image of two registered frames (Eq. 2), optionally as optical depth,
+    and the step of the camera's offset levelled out of it.
 
     Parameters
     ----------
@@ -140,10 +152,12 @@ def differential_image(
 
     Returns
     -------
-    ndarray, shape (H, W), float32
+    difference : ndarray, shape (H, W), float32
         I(t) - I(t+1) less the camera's offset step between them (:func:`offset_step`), or
         that divided by c = I_mid - L_g held at +-``min_contrast`` (module docstring, I(t+1)
         brought onto I(t)'s offset): dimensionless, ~ the change of optical depth.
+    step : float
+        The step levelled out, in the frames' unit (0.0: none found).
     """
     diff = earlier - later
     step = offset_step(diff, float(np.abs(earlier[::2, ::2]).mean()))
@@ -152,13 +166,13 @@ def differential_image(
     if step:
         diff -= np.float32(step)
     if gas_radiance is None:
-        return diff
+        return diff, step
     floor = check_positive(min_contrast, "min_contrast")
     contrast = 0.5 * (earlier + later + np.float32(step)) - np.float32(gas_radiance)
     # The divisor keeps its sign (gas in front of a warmer or a colder background) and is
     # held at the floor where the background has about the gas's temperature.
     mag = np.maximum(np.abs(contrast), np.float32(floor))
-    return (diff / np.where(contrast < 0, -mag, mag)).astype(np.float32, copy=False)
+    return (diff / np.where(contrast < 0, -mag, mag)).astype(np.float32, copy=False), step
 
 
 @dataclass(frozen=True)
@@ -182,6 +196,11 @@ class PreprocessedTriple:
         therefore not applied.
     rejected : (bool, bool)
         Which of the two shifts this call estimated and rejected (False for a known one).
+    offset_step1 : float
+        The step of the camera's offset levelled out of D(t1) (:func:`levelled_difference`),
+        radiance units (counts without a characteristic curve); 0.0: none. D(t0) is the
+        previous triple's D(t1), so each frame pair's step is reported once, by the triple
+        that computed its difference as D(t1).
     """
 
     diff0: np.ndarray
@@ -191,6 +210,7 @@ class PreprocessedTriple:
     shifts: tuple[tuple[float, float], tuple[float, float]]
     rejected_shifts: int = 0
     rejected: tuple[bool, bool] = (False, False)
+    offset_step1: float = 0.0
 
     @property
     def border_px(self) -> int:
@@ -225,6 +245,8 @@ class SecondDifference:
         As :class:`PreprocessedTriple`.
     raw1, denoised1 : ndarray, shape (H, W), float32
         D(t1) = I(t1) - I(t2) (Eq. 2) in radiance units, and denoised.
+    step1 : float
+        The camera's offset step levelled out of D(t1), radiance units (0.0: none).
     """
 
     frames: tuple[np.ndarray, np.ndarray, np.ndarray]
@@ -232,6 +254,7 @@ class SecondDifference:
     rejected: tuple[bool, bool]
     raw1: np.ndarray
     denoised1: np.ndarray
+    step1: float = 0.0
 
 
 def second_difference(
@@ -282,10 +305,10 @@ def second_difference(
         s02 = (s01[0] + s12[0], s01[1] + s12[1])
         imgs[1] = warp_translation(imgs[1], s01)
         imgs[2] = warp_translation(imgs[2], s02)
-    raw1 = differential_image(imgs[1], imgs[2], gas_radiance, min_contrast)
+    raw1, step1 = levelled_difference(imgs[1], imgs[2], gas_radiance, min_contrast)
     return SecondDifference((imgs[0], imgs[1], imgs[2]), (s01, s12),
                             (rejected[0], rejected[1]), raw1,
-                            sobolev_denoise(raw1, denoise_lambda))
+                            sobolev_denoise(raw1, denoise_lambda), step1)
 
 
 def complete_triple(
@@ -319,7 +342,7 @@ def complete_triple(
     return PreprocessedTriple(normalise_difference(smooth0, scale),
                               normalise_difference(second.denoised1, scale), raw0,
                               second.raw1, second.shifts, sum(second.rejected),
-                              second.rejected)
+                              second.rejected, second.step1)
 
 
 def preprocess_camera(

@@ -67,7 +67,8 @@ function renderStatus(s) {
 function renderHealth(h) {
   const ul = $("health");
   const words = h.words && h.words.length ? h.words : ["starting"];
-  const fine = words.findIndex((x) => x === "all devices delivering" || /GB free for/.test(x));
+  const fine = words.findIndex((x) => x === "all devices delivering" || /GB free for/.test(x) ||
+    /^offset steps levelled/.test(x));
   ul.replaceChildren(...words.map((x, i) => {
     const li = document.createElement("li");
     li.textContent = x;
