@@ -125,6 +125,29 @@ def test_a_flat_field_shutter_steps_the_whole_picture_up_and_back() -> None:
             create_camera("simulated", source=src, realtime=False, **bad)
 
 
+def test_a_shutter_can_leave_a_new_fixed_pattern_each_time() -> None:
+    """With ``shutter_pattern_counts`` every shutter interval adds its own white fixed
+    pattern (the residual non-uniformity of that correction): the same within an interval,
+    another in the next, about that standard deviation; the offset still alternates."""
+    src = TexturePatternSource(n_frames=4)
+    cam = create_camera("simulated", source=src, shutter_every_s=0.1, shutter_counts=300,
+                        shutter_pattern_counts=20.0, drop_rate=0.0, realtime=False)
+    with cam:
+        frames = [cam.grab() for _ in range(9)]
+    added = [f.image.astype(np.float64) - src.stereo(f.device_frame_id)[0] for f in frames]
+    by_interval = {}
+    for f, a in zip(frames, added, strict=True):
+        by_interval.setdefault(f.device_frame_id // 3, []).append(a)
+    for interval, patterns in by_interval.items():
+        for a in patterns[1:]:
+            np.testing.assert_array_equal(a, patterns[0])  # fixed within the interval
+        step = 300 if interval % 2 else 0
+        assert abs(np.median(patterns[0]) - step) < 2, interval
+        assert 18 < np.std(patterns[0]) < 22, interval
+    first, second = by_interval[0][0], by_interval[2][0]
+    assert abs(np.corrcoef(first.ravel(), second.ravel())[0, 1]) < 0.05  # a new pattern
+
+
 def test_realtime_mode_delivers_live_frames() -> None:
     cam = create_camera("simulated", fps=100.0, latency_s=0.001, jitter_s=0.0005)
     with cam:

@@ -92,3 +92,29 @@ def test_a_result_without_fields_is_a_tenth_of_the_bytes_to_send() -> None:
                           raw_left=np.zeros((240, 320), np.uint16), fields=fields)
         sizes[fields] = len(pickle.dumps(res, protocol=pickle.HIGHEST_PROTOCOL))
     assert sizes[True] > 2.5e6 and sizes[False] < 0.1 * sizes[True], sizes
+
+
+@pytest.mark.parametrize("camera", ["left", "right"])
+def test_a_single_camera_result_says_which_camera_stepped(camera: str) -> None:
+    """The single-camera chain levels a camera's offset step out of I_diff(N + 1) as the
+    stereo chain does, and its result reports it for that camera alone (the health count)."""
+    from scipy import ndimage
+
+    from appliance.runtime.single_camera import mono_triple
+    from appliance.runtime.worker_result import pack_single
+
+    rng = np.random.default_rng(3)
+    base = 20000 + 300 * ndimage.gaussian_filter(rng.standard_normal((120, 160)), 3)
+    frames = [base, np.roll(base, 1, axis=1), np.roll(base, 2, axis=1) + 500]
+    imgs = [np.clip(f + rng.normal(0, 2, f.shape), 0, 65535).astype(np.uint16) for f in frames]
+    results = []
+    for stepped in (imgs, [*imgs[:2], imgs[1]]):
+        tr = mono_triple(0, stepped, scale=200.0, register=False, denoise_lambda=2.0)
+        res = WorkerResult(worker=0, pair_indices=(0, 1, 2), t_mono_ns=(0, 1, 2), t_wall_ns=0,
+                           skipped=0, done_mono_ns=3)
+        pack_single(tr, res, camera)
+        results.append((tr.offset_step1, res.offset_levelled))
+    (step, levelled), (none, quiet) = results
+    assert step == pytest.approx(-500, abs=20) and none == 0.0
+    assert levelled == ((True, False) if camera == "left" else (False, True))
+    assert quiet == (False, False)

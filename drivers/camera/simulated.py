@@ -34,7 +34,9 @@ optional sub-pixel shift (``image_jitter_px``, one ``cv2.warpAffine``, ~0.1 ms) 
 optional flat-field shutter (``shutter_every_s``): every that many seconds the camera's
 whole picture steps by ``shutter_counts``, up and back down in turn, as a camera's
 non-uniformity correction moves its offset (the chain levels such steps out and counts
-them, :func:`processing.preprocess.differential.levelled_difference`).
+them, :func:`processing.preprocess.differential.levelled_difference`); with
+``shutter_pattern_counts`` each correction also leaves a new fixed pattern (a residual
+non-uniformity, white, that standard deviation in counts) until the next.
 """
 
 from __future__ import annotations
@@ -189,6 +191,9 @@ class SimulatedCamera(Camera):
         frames ``k`` with ``(k // period) % 2 == 1`` read ``shutter_counts`` more.
     shutter_counts : int
         The step of the picture's offset at a shutter, counts (1-65535).
+    shutter_pattern_counts : float
+        Standard deviation of the fixed pattern each shutter leaves, counts (0: none); one
+        pattern per shutter interval, drawn from ``seed`` and the interval's number.
     """
 
     backend = "simulated"
@@ -216,6 +221,7 @@ class SimulatedCamera(Camera):
         outage_s: float = 5.0,
         shutter_every_s: float | None = None,
         shutter_counts: int = 200,
+        shutter_pattern_counts: float = 0.0,
     ) -> None:
         super().__init__(label=label or side)
         if side not in ("left", "right"):
@@ -229,11 +235,17 @@ class SimulatedCamera(Camera):
             raise ValueError(f"shutter_every_s must be > 0 or null, got {shutter_every_s!r}")
         if not 1 <= int(shutter_counts) <= 65535:
             raise ValueError(f"shutter_counts must be 1-65535, got {shutter_counts!r}")
+        if not 0 <= shutter_pattern_counts < 65535:
+            raise ValueError("shutter_pattern_counts must be >= 0 counts, got "
+                             f"{shutter_pattern_counts!r}")
         self.side = side
         self._outage = (outage_after_s, outage_s)
         self._shutter_period = (None if shutter_every_s is None
                                 else max(1, round(shutter_every_s * fps)))
         self._shutter_counts = int(shutter_counts)
+        self._pattern_sd = float(shutter_pattern_counts)
+        self._pattern: tuple[int, np.ndarray] | None = None  # (interval, its pattern)
+        self._seed = seed
         self._source_spec = source
         self.timing = TimingModel(
             TimingParams(
@@ -318,8 +330,8 @@ class SimulatedCamera(Camera):
         image = self.source.stereo(k)[0 if self.side == "left" else 1]
         if self.image_jitter_px > 0:
             image = self._shift(image)
-        if self._shutter_period is not None and (k // self._shutter_period) % 2:
-            image = self._stepped(image)
+        if self._shutter_period is not None:
+            image = self._stepped(image, k // self._shutter_period)
         return Capture(
             image=image,
             pixel_format="Mono16",
@@ -347,13 +359,21 @@ class SimulatedCamera(Camera):
             image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT
         )
 
-    def _stepped(self, image: np.ndarray) -> np.ndarray:
-        """``image`` with the shutter's offset step, saturating at the format's top."""
+    def _stepped(self, image: np.ndarray, interval: int) -> np.ndarray:
+        """``image`` as the shutter interval ``interval`` leaves it: the offset step in
+        every other interval, the interval's fixed pattern, clipped to the format."""
+        offset = np.float64(self._shutter_counts if interval % 2 else 0)
+        if self._pattern_sd > 0:
+            if self._pattern is None or self._pattern[0] != interval:
+                rng = np.random.default_rng([self._seed, 104729, interval])
+                self._pattern = (interval, rng.normal(0.0, self._pattern_sd, image.shape))
+            offset = offset + self._pattern[1]
+        if not np.any(offset):
+            return image
         if not np.issubdtype(image.dtype, np.integer):
-            return image + image.dtype.type(self._shutter_counts)
-        top = np.iinfo(image.dtype).max
-        return np.minimum(image.astype(np.int64) + self._shutter_counts, top).astype(
-            image.dtype)
+            return (image + offset).astype(image.dtype)
+        info = np.iinfo(image.dtype)
+        return np.clip(np.rint(image + offset), info.min, info.max).astype(image.dtype)
 
     def _close(self) -> None:
         self.source = None
