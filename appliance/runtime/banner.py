@@ -31,7 +31,7 @@ def announce_end(app: Any) -> None:
         f"{100 * c.cold_results / max(c.results, 1):.0f} % of them started cold), "
         f"skipped {c.skipped_pairs} ({c.skipped_pairs / elapsed:.1f}/s), "
         f"failed {c.result_errors}, wind samples {c.wind_samples}"
-        f"{offset_step_words(c.offset_steps)}{camera_words(app)}\n")
+        f"{levelled_steps_words(c.offset_steps)}{camera_words(app)}\n")
     where = app.stage_times.describe()
     if where is not None:
         sys.stderr.write(f"ogiflow: {where}\n")
@@ -85,7 +85,7 @@ def camera_words(app: Any) -> str:
             f"camera, {c.single_results} of them processed)")
 
 
-def offset_step_words(steps: dict[str, int]) -> str:
+def levelled_steps_words(steps: dict[str, int]) -> str:
     """``, offset steps levelled 4/0 (left/right)`` when a camera's picture stepped (a
     flat-field shutter, a drift) in the processed triples; empty when none did."""
     if not any(steps.values()):

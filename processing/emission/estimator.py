@@ -195,7 +195,9 @@ class EmissionEstimator:
         previous = self.background.estimate()
         if previous is not None and previous.shape == radiance.shape:
             level = float(np.abs(previous[::2, ::2]).mean())
-            radiance = radiance - np.float32(offset_step(radiance - previous, level, ~keep_out))
+            step = offset_step(radiance - previous, level, ~keep_out)
+            if step:
+                radiance = radiance - np.float32(step)
         self.background.update(radiance, keep_out)
         l_gas = float(band_radiance(gas_temperature_k, self.band_m))
         cd = column_density(radiance, self.background.estimate(), l_gas,

@@ -69,4 +69,4 @@ def offset_step(diff: np.ndarray, level: float, where: np.ndarray | None = None)
     if abs(step) <= STEP_FLOOR * abs(level):
         return 0.0
     spread = median(np.abs(sample - np.float32(step)))
-    return step if abs(step) > STEP_SPREAD * spread else 0.0
+    return float(step) if abs(step) > STEP_SPREAD * spread else 0.0
